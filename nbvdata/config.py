@@ -1,0 +1,260 @@
+"""Settings of the simulation, as frozen dataclasses filled from YAML.
+
+The dataclasses are the source of truth: every field has a default and a docstring-style
+comment. YAML (``yaml.safe_load``) and ``--set section.key=value`` overrides only fill them.
+Unknown keys are rejected with a "did you mean" hint and every value is checked against its
+rule, so a typo in a config fails at once with one line that names the fix.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A config file or override that cannot be used; the message names the fix."""
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class MeshConfig:
+    object_size: float = 0.24
+    """Largest bounding-box side of the object after normalisation, in metres."""
+    up_axis: Literal["z", "y"] = "z"
+    """Axis that points up in the mesh files; "y" rotates y-up files so that +z is up."""
+
+    def __post_init__(self) -> None:
+        _check(self.object_size > 0, f"mesh.object_size={self.object_size}: must be > 0 metres")
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    radius: float = 0.4
+    """Radius of the view sphere around the object centre, in metres (the authors' 0.4 m)."""
+    count: int = 500
+    """Number of candidate views."""
+    layout: Literal["hemisphere", "sphere"] = "hemisphere"
+    """"hemisphere": z >= 0 only (object on a table, as in the authors' data); "sphere": all round."""
+
+    def __post_init__(self) -> None:
+        _check(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
+        _check(self.count >= 1, f"views.count={self.count}: must be >= 1")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    width: int = 176
+    """Rays per image row (the authors' time-of-flight camera: 176)."""
+    height: int = 144
+    """Rays per image column (authors: 144)."""
+    hfov: float = 0.77
+    """Horizontal field of view in radians (authors: 0.77)."""
+    vfov: float = 0.61
+    """Vertical field of view in radians (authors: 0.61)."""
+    near: float = 0.05
+    """Closest range that returns a measurement, in metres."""
+    far: float = 1.0
+    """Farthest range that returns a measurement; rays without a return carve free space to here."""
+    noise_std: float = 0.0
+    """Standard deviation of Gaussian range noise along each ray, in metres (0 = exact)."""
+
+    def __post_init__(self) -> None:
+        _check(self.width >= 1 and self.height >= 1,
+               f"sensor.width/height={self.width}x{self.height}: must be >= 1")
+        _check(0 < self.hfov < 3.1 and 0 < self.vfov < 3.1,
+               f"sensor.hfov/vfov={self.hfov}/{self.vfov}: must lie in (0, 3.1) radians")
+        _check(0 <= self.near < self.far, f"sensor.near={self.near}, far={self.far}: need 0 <= near < far")
+        _check(self.noise_std >= 0, f"sensor.noise_std={self.noise_std}: must be >= 0")
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    size: int = 32
+    """Voxels along each axis."""
+    extent: float = 0.32
+    """Side of the grid cube in metres, centred on the object (0.32 m -> 1 cm voxels)."""
+    prob_hit: float = 0.7
+    """Occupancy probability of a voxel that holds a return (OctoMap default 0.7)."""
+    prob_miss: float = 0.4
+    """Occupancy probability of a voxel a ray passes through (OctoMap default 0.4)."""
+    clamp_min: float = 0.1192
+    """Lower clamping probability (OctoMap default 0.1192)."""
+    clamp_max: float = 0.971
+    """Upper clamping probability (OctoMap default 0.971)."""
+
+    def __post_init__(self) -> None:
+        _check(self.size >= 2 and self.size % 2 == 0,
+               f"grid.size={self.size}: must be even and >= 2 (so voxels align with OctoMap keys)")
+        _check(self.extent > 0, f"grid.extent={self.extent}: must be > 0 metres")
+        _check(0.5 < self.prob_hit < 1, f"grid.prob_hit={self.prob_hit}: must lie in (0.5, 1)")
+        _check(0 < self.prob_miss < 0.5, f"grid.prob_miss={self.prob_miss}: must lie in (0, 0.5)")
+        _check(0 < self.clamp_min < 0.5 < self.clamp_max < 1,
+               f"grid.clamp_min/max={self.clamp_min}/{self.clamp_max}: need 0 < min < 0.5 < max < 1")
+
+    @property
+    def resolution(self) -> float:
+        """Voxel side in metres."""
+        return self.extent / self.size
+
+
+@dataclass(frozen=True)
+class CoverageConfig:
+    points: int = 16384
+    """Reference points sampled on the mesh surface (16,384 as in PC-NBV and SCONE)."""
+    threshold: float = 0.003
+    """Match distance in metres: a reference point is covered when a scanned point lies this close.
+
+    3 mm is 1.7x the sensor's point spacing at 0.4 m (0.77 rad / 176 rays * 0.4 m = 1.75 mm), so
+    a surface facing the sensor is matched everywhere, and one seen up to about 65 degrees off
+    its normal still is (the spacing grows as 1/cos); it is 0.0075 of a 0.4 m object diagonal,
+    close to the 0.00707-of-unit-diagonal threshold of PC-NBV and SCONE."""
+    metric: Literal["euclidean", "box"] = "euclidean"
+    """"euclidean": distance <= threshold; "box": |dx|, |dy|, |dz| < threshold (the authors' code)."""
+
+    def __post_init__(self) -> None:
+        _check(self.points >= 1, f"coverage.points={self.points}: must be >= 1")
+        _check(self.threshold > 0, f"coverage.threshold={self.threshold}: must be > 0 metres")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that defines one simulated reconstruction scene."""
+
+    mesh: MeshConfig = field(default_factory=MeshConfig)
+    views: ViewConfig = field(default_factory=ViewConfig)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+    coverage: CoverageConfig = field(default_factory=CoverageConfig)
+
+
+# ---------------------------------------------------------------------------------------------
+# Building dataclasses from plain data
+
+
+def from_dict(cls: type, data: dict[str, Any] | None, where: str = "") -> Any:
+    """Build dataclass ``cls`` from a nested dict, rejecting unknown keys and wrong types."""
+    data = {} if data is None else data
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where or 'config'}: expected a mapping of keys, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    values = {}
+    for key, value in data.items():
+        if key not in fields:
+            close = difflib.get_close_matches(str(key), list(fields), n=1)
+            hint = f"; did you mean '{_join(where, close[0])}'?" if close else ""
+            raise ConfigError(f"unknown setting '{_join(where, key)}'{hint} "
+                              f"(known: {', '.join(fields)})")
+        values[key] = _coerce(hints[key], value, _join(where, key))
+    return cls(**values)
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else str(key)
+
+
+def _coerce(hint: Any, value: Any, where: str) -> Any:
+    if dataclasses.is_dataclass(hint):
+        return from_dict(hint, value, where)
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        choices = typing.get_args(hint)
+        if value not in choices:
+            raise ConfigError(f"{where}={value!r}: must be one of {', '.join(map(repr, choices))}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}={value!r}: must be true or false")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}={value!r}: must be an integer")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}={value!r}: must be a number")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}={value!r}: must be a string")
+        return value
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}={value!r}: must be a list")
+        (item,) = typing.get_args(hint)[:1]
+        return tuple(_coerce(item, v, f"{where}[{i}]") for i, v in enumerate(value))
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _coerce(arg, value, where)
+            except ConfigError:
+                pass
+        raise ConfigError(f"{where}={value!r}: must be {hint}")
+    return value
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """Plain nested dict of a config dataclass (tuples become lists), safe for YAML."""
+    def plain(value: Any) -> Any:
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        return value
+    return plain(dataclasses.asdict(config))
+
+
+def to_yaml(config: Any) -> str:
+    """The resolved config as YAML text (plain types only, loadable with ``yaml.safe_load``)."""
+    return yaml.safe_dump(to_dict(config), sort_keys=False)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Split ``section.key=value`` into a key path and a YAML-parsed value."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected key=value, e.g. --set views.count=1000")
+    key, raw = text.split("=", 1)
+    path = [part for part in key.strip().split(".") if part]
+    if not path:
+        raise ConfigError(f"--set {text!r}: the key before '=' is empty")
+    return path, yaml.safe_load(raw) if raw.strip() else ""
+
+
+def load_config(cls: type, path: str | Path | None = None, overrides: list[str] = ()) -> Any:
+    """Defaults of ``cls``, then the YAML file at ``path``, then ``key=value`` overrides."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file {path} not found: check the --config path")
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as error:
+            raise ConfigError(f"config file {path} is not valid YAML: {error}".splitlines()[0]) from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"config file {path}: the top level must be a mapping of sections")
+    for text in overrides:
+        keys, value = parse_override(text)
+        node = data
+        for key in keys[:-1]:
+            node = node.setdefault(key, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {text!r}: '{key}' is a value, not a section")
+        node[keys[-1]] = value
+    return from_dict(cls, data)

@@ -1,0 +1,319 @@
+"""Probabilistic occupancy grid over the object cube, with OctoMap's exact update semantics.
+
+The grid is ``size``^3 voxels of side ``extent / size`` covering the cube centred on the
+origin. Its voxels coincide with the leaves of an OctoMap octree of the same resolution (the
+cube's corner lies on a key boundary), and integrating a scan reproduces
+``OcTree.insertPointCloud(points, origin, maxrange=far)`` voxel for voxel:
+
+- every ray is walked with OctoMap's own 3D-DDA (``computeRayKeys``), in the same float32 and
+  float64 arithmetic, from the sensor to its end point; the voxels passed are free, the end
+  voxel is occupied; a ray longer than the far range is cut there and marks nothing occupied;
+- within one scan a voxel is updated at most once, and a hit wins over a miss;
+- log-odds are float32, updates add logodds(prob_hit) or logodds(prob_miss), then clamp.
+
+Voxel [i, j, k] spans x, y, z = origin + ([i, j, k] + [0, 1]) * resolution. Exported
+probabilities use the authors' encoding: float32, exactly 0.5 for never-observed voxels.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numba
+import numpy as np
+
+from nbvdata.config import GridConfig
+from nbvdata.sensor import Scan
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # Try OpenMP before TBB: pip's TBB is often too old for numba, which then warns on every run.
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+
+def _logodds(probability: float) -> np.float32:
+    """OctoMap's ``logodds``: computed in double, stored as float."""
+    return np.float32(math.log(probability / (1.0 - probability)))
+
+
+class OccupancyGrid:
+    """Log-odds occupancy grid; ``integrate`` scans, read ``probabilities()``.
+
+    log_odds : (n, n, n) float32, 0 where nothing was observed
+    observed : (n, n, n) bool, True once any ray has updated the voxel
+    """
+
+    def __init__(self, config: GridConfig = GridConfig()):
+        self.config = config
+        n = config.size
+        self.resolution = config.resolution
+        # Key of the grid's first voxel in OctoMap's key space (without its 2^15 offset).
+        self.first_key = -(n // 2)
+        self.origin = self.first_key * self.resolution
+        self.log_odds = np.zeros((n, n, n), dtype=np.float32)
+        self.observed = np.zeros((n, n, n), dtype=bool)
+        self._hit = _logodds(config.prob_hit)
+        self._miss = _logodds(config.prob_miss)
+        self._clamp = (_logodds(config.clamp_min), _logodds(config.clamp_max))
+        self._free_mark = np.zeros((n, n, n), dtype=np.uint8)
+        self._occupied_mark = np.zeros((n, n, n), dtype=np.uint8)
+
+    @property
+    def size(self) -> int:
+        return self.config.size
+
+    def copy(self) -> "OccupancyGrid":
+        other = OccupancyGrid(self.config)
+        other.log_odds[...] = self.log_odds
+        other.observed[...] = self.observed
+        return other
+
+    def integrate(self, scan: Scan, max_range: float) -> None:
+        """Insert one scan, as OctoMap's insertPointCloud(points, origin, maxrange=max_range)."""
+        points = np.ascontiguousarray(scan.points, dtype=np.float32)
+        origin = np.ascontiguousarray(scan.origin, dtype=np.float32)
+        self._free_mark[...] = 0
+        self._occupied_mark[...] = 0
+        _mark_rays(origin, points, float(max_range), self.resolution, self.first_key,
+                   self._free_mark, self._occupied_mark)
+        _apply_marks(self.log_odds, self.observed, self._free_mark, self._occupied_mark,
+                     self._hit, self._miss, self._clamp[0], self._clamp[1])
+
+    def probabilities(self) -> np.ndarray:
+        """(n, n, n) float32 occupancy probability; exactly 0.5 where unknown (authors' encoding)."""
+        p = 1.0 - 1.0 / (1.0 + np.exp(self.log_odds.astype(np.float64)))
+        return np.where(self.observed, p, 0.5).astype(np.float32)
+
+    def counts(self) -> dict[str, int]:
+        """Voxels that are occupied (p > 0.5), free (p < 0.5) and unknown (never observed or p = 0.5)."""
+        occupied = int(np.count_nonzero(self.observed & (self.log_odds > 0)))
+        free = int(np.count_nonzero(self.observed & (self.log_odds < 0)))
+        return {"occupied": occupied, "free": free, "unknown": self.log_odds.size - occupied - free}
+
+    def voxel_centres(self) -> np.ndarray:
+        """(n, n, n, 3) float64 world coordinates of every voxel centre."""
+        axis = self.origin + (np.arange(self.size) + 0.5) * self.resolution
+        return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Compiled kernels. Names and arithmetic follow OctoMap's OcTreeBaseImpl::computeRayKeys and
+# OccupancyOcTreeBase::computeUpdate; float32 where OctoMap uses float, float64 where double.
+
+
+@numba.njit(cache=True, inline="always")
+def _coord_to_key(coordinate, inv_resolution):
+    return np.int64(math.floor(inv_resolution * np.float64(coordinate)))
+
+
+@numba.njit(cache=True, inline="always")
+def _mark(mark, key0, key1, key2, first_key, n):
+    i, j, k = key0 - first_key, key1 - first_key, key2 - first_key
+    if 0 <= i < n and 0 <= j < n and 0 <= k < n:
+        if mark[i, j, k] == 0:  # read first: threads then share the cache line instead of fighting for it
+            mark[i, j, k] = 1
+        return True
+    return False
+
+
+@numba.njit(cache=True, inline="always")
+def _axis_setup(key, origin, direction, resolution):
+    """OctoMap's per-axis DDA start: (step, t_max, t_delta) for one axis."""
+    if direction > 0.0:
+        step = 1
+    elif direction < 0.0:
+        step = -1
+    else:
+        return 0, np.inf, np.inf
+    border = (np.float64(key) + 0.5) * resolution  # keyToCoord
+    border += np.float64(np.float32(step * resolution * 0.5))
+    t_max = (border - np.float64(origin)) / np.float64(direction)
+    t_delta = resolution / abs(np.float64(direction))
+    return step, t_max, t_delta
+
+
+@numba.njit(cache=True, inline="always")
+def _keys_before_grid(key, step, first_key, n):
+    """Steps along one axis before its key enters [first_key, first_key + n); -1 if never."""
+    if first_key <= key < first_key + n:
+        return 0
+    if step > 0 and key < first_key:
+        return first_key - key
+    if step < 0 and key >= first_key + n:
+        return key - (first_key + n - 1)
+    return -1
+
+
+@numba.njit(cache=True, inline="always")
+def _beyond_far_side(key, step, first_key, n):
+    return (step > 0 and key >= first_key + n) or (step < 0 and key < first_key)
+
+
+@numba.njit(cache=True, inline="always")
+def _end_not_before_grid(end0, end1, end2, s0, s1, s2, first_key, n):
+    """True when the walk cannot reach the end voxel before it enters the grid."""
+    last = first_key + n
+    if first_key <= end0 < last and first_key <= end1 < last and first_key <= end2 < last:
+        return True
+    return (_beyond_far_side(end0, s0, first_key, n) or _beyond_far_side(end1, s1, first_key, n)
+            or _beyond_far_side(end2, s2, first_key, n))
+
+
+@numba.njit(cache=True, inline="always")
+def _advance(key, t, step, delta, count):
+    for _ in range(count):
+        key += step
+        t += delta
+    return key, t
+
+
+@numba.njit(cache=True, inline="always")
+def _advance_before(key, t, step, delta, axis, entry_t, entry_axis):
+    """Take this axis's crossings that the DDA takes before the crossing (entry_t, entry_axis).
+
+    The DDA takes the smallest pending t first and, among equal t, the highest axis.
+    """
+    count = 0
+    while t < entry_t or (t == entry_t and axis > entry_axis):
+        key += step
+        t += delta
+        count += 1
+    return key, t, count
+
+
+@numba.njit(cache=True)
+def _skip_to_grid(k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n):
+    """Fast-forward the DDA to the step before it first enters the grid, with identical state.
+
+    Each axis's crossing times are its own running sums (t += delta), so they can be advanced
+    axis by axis; the DDA's interleaving only decides which crossing comes first, and the
+    entry is the last of the axes' entry crossings in that order. Returns the new keys and
+    pending times, the number of skipped steps (-1 if the ray never enters) and the entry time.
+    """
+    m0 = _keys_before_grid(k0, s0, first_key, n)
+    m1 = _keys_before_grid(k1, s1, first_key, n)
+    m2 = _keys_before_grid(k2, s2, first_key, n)
+    if m0 < 0 or m1 < 0 or m2 < 0:
+        return k0, k1, k2, t0, t1, t2, -1, 0.0
+    # Pending time of each axis's entry crossing; the entry is the one the DDA takes last.
+    entry_axis, entry_t = -1, -np.inf
+    if m0 > 0:
+        k0, t0 = _advance(k0, t0, s0, dt0, m0 - 1)
+        entry_axis, entry_t = 0, t0
+    if m1 > 0:
+        k1, t1 = _advance(k1, t1, s1, dt1, m1 - 1)
+        if t1 >= entry_t:
+            entry_axis, entry_t = 1, t1
+    if m2 > 0:
+        k2, t2 = _advance(k2, t2, s2, dt2, m2 - 1)
+        if t2 >= entry_t:
+            entry_axis, entry_t = 2, t2
+    skipped = (m0 - 1 if m0 > 0 else 0) + (m1 - 1 if m1 > 0 else 0) + (m2 - 1 if m2 > 0 else 0)
+    if entry_axis != 0:
+        k0, t0, c = _advance_before(k0, t0, s0, dt0, 0, entry_t, entry_axis)
+        skipped += c
+    if entry_axis != 1:
+        k1, t1, c = _advance_before(k1, t1, s1, dt1, 1, entry_t, entry_axis)
+        skipped += c
+    if entry_axis != 2:
+        k2, t2, c = _advance_before(k2, t2, s2, dt2, 2, entry_t, entry_axis)
+        skipped += c
+    if (_beyond_far_side(k0, s0, first_key, n) or _beyond_far_side(k1, s1, first_key, n)
+            or _beyond_far_side(k2, s2, first_key, n)):
+        return k0, k1, k2, t0, t1, t2, -1, entry_t  # passes beside the grid
+    return k0, k1, k2, t0, t1, t2, skipped, entry_t
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
+    """Mark free every grid voxel OctoMap's computeRayKeys(origin, end) returns."""
+    n = free_mark.shape[0]
+    inv_resolution = 1.0 / resolution
+    k0 = _coord_to_key(ox, inv_resolution)
+    k1 = _coord_to_key(oy, inv_resolution)
+    k2 = _coord_to_key(oz, inv_resolution)
+    end0 = _coord_to_key(ex, inv_resolution)
+    end1 = _coord_to_key(ey, inv_resolution)
+    end2 = _coord_to_key(ez, inv_resolution)
+    if k0 == end0 and k1 == end1 and k2 == end2:
+        return
+    was_inside = _mark(free_mark, k0, k1, k2, first_key, n)
+
+    d0, d1, d2 = ex - ox, ey - oy, ez - oz  # float32, as octomath::Vector3
+    length = np.float32(math.sqrt(np.float64(d0 * d0 + d1 * d1 + d2 * d2)))
+    d0, d1, d2 = d0 / length, d1 / length, d2 / length
+    s0, t0, dt0 = _axis_setup(k0, ox, d0, resolution)
+    s1, t1, dt1 = _axis_setup(k1, oy, d1, resolution)
+    s2, t2, dt2 = _axis_setup(k2, oz, d2, resolution)
+    length64 = np.float64(length)
+
+    if not was_inside and _end_not_before_grid(end0, end1, end2, s0, s1, s2, first_key, n):
+        k0, k1, k2, t0, t1, t2, skipped, entry_t = _skip_to_grid(
+            k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n)
+        if skipped < 0 or (skipped > 0 and entry_t > length64):
+            return  # never enters the grid, or ends before it
+
+    while True:
+        # OctoMap's axis choice (smallest t; on ties the higher axis), written with selects
+        # instead of branches: the choice is unpredictable, so branches would mispredict.
+        c0 = (t0 < t1) & (t0 < t2)
+        c1 = (t0 >= t1) & (t1 < t2)
+        c2 = not (c0 or c1)
+        k0 += s0 if c0 else 0
+        k1 += s1 if c1 else 0
+        k2 += s2 if c2 else 0
+        t0 = t0 + dt0 if c0 else t0
+        t1 = t1 + dt1 if c1 else t1
+        t2 = t2 + dt2 if c2 else t2
+        if k0 == end0 and k1 == end1 and k2 == end2:
+            return
+        if min(t0, min(t1, t2)) > length64:
+            return
+        inside = _mark(free_mark, k0, k1, k2, first_key, n)
+        if was_inside and not inside:
+            return  # left the grid cube: a straight ray cannot come back into it
+        was_inside = was_inside or inside
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _mark_rays(origin, points, max_range, resolution, first_key, free_mark, occupied_mark):
+    """Mark the voxels a scan frees and occupies (OctoMap computeUpdate, before the hit-wins rule)."""
+    n = free_mark.shape[0]
+    inv_resolution = 1.0 / resolution
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for r in numba.prange(points.shape[0]):
+        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
+        dx, dy, dz = px - ox, py - oy, pz - oz
+        distance = math.sqrt(np.float64(dx * dx + dy * dy + dz * dz))
+        if max_range < 0.0 or distance <= max_range:
+            _walk_ray(ox, oy, oz, px, py, pz, resolution, first_key, free_mark)
+            _mark(occupied_mark, _coord_to_key(px, inv_resolution), _coord_to_key(py, inv_resolution),
+                  _coord_to_key(pz, inv_resolution), first_key, n)
+        else:
+            length = np.float32(distance)
+            reach = np.float32(max_range)
+            ex = ox + (dx / length) * reach
+            ey = oy + (dy / length) * reach
+            ez = oz + (dz / length) * reach
+            _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark)
+
+
+@numba.njit(cache=True)
+def _apply_marks(log_odds, observed, free_mark, occupied_mark, hit, miss, clamp_min, clamp_max):
+    """One update per marked voxel: hit where occupied, else miss where free; then clamp."""
+    flat_lo, flat_seen = log_odds.ravel(), observed.ravel()
+    flat_free, flat_occ = free_mark.ravel(), occupied_mark.ravel()
+    for v in range(flat_lo.size):
+        if flat_occ[v]:
+            update = hit
+        elif flat_free[v]:
+            update = miss
+        else:
+            continue
+        value = flat_lo[v] + update
+        if value < clamp_min:
+            value = clamp_min
+        elif value > clamp_max:
+            value = clamp_max
+        flat_lo[v] = value
+        flat_seen[v] = True

@@ -1,0 +1,163 @@
+"""Candidate views on a sphere around the object, and the pose type with the authors' angles.
+
+Camera convention (the one the authors' ``dataset_pose.npy`` follows, checked row by row):
+``rotation`` is the world-to-camera matrix R = Rz(yaw) @ Ry(pitch) @ Rx(roll). Its rows are the
+camera axes in world coordinates: x (image right, kept horizontal), y (image down) and z (the
+optical axis). For a view looking at the centre, the third row is the unit vector from the view
+towards the centre. Looking straight down, image right is world +x, as in the authors' data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nbvdata.config import ViewConfig
+
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+def look_at_rotations(positions: np.ndarray, target: np.ndarray = np.zeros(3)) -> np.ndarray:
+    """World-to-camera rotations of cameras at ``positions`` (n, 3) looking at ``target``.
+
+    Returns (n, 3, 3) float64 with rows (x, y, z): z towards the target, x = z cross up
+    (horizontal), y = z cross x (pointing down in the image).
+    """
+    positions = np.atleast_2d(np.asarray(positions, dtype=np.float64))
+    forward = np.asarray(target, dtype=np.float64) - positions
+    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+    right = np.cross(forward, _UP)
+    norm = np.linalg.norm(right, axis=1, keepdims=True)
+    vertical = norm[:, 0] < 1e-9
+    right[vertical] = (1.0, 0.0, 0.0)  # looking straight up or down: image right = world +x
+    norm[vertical] = 1.0
+    right /= norm
+    down = np.cross(forward, right)
+    return np.stack([right, down, forward], axis=1)
+
+
+def angles_to_rotations(angles: np.ndarray) -> np.ndarray:
+    """(n, 3) (yaw, pitch, roll) in radians -> (n, 3, 3) R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    yaw, pitch, roll = np.atleast_2d(np.asarray(angles, dtype=np.float64)).T
+    cz, sz, cy, sy, cx, sx = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    return np.stack([
+        np.stack([cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx], axis=-1),
+        np.stack([sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx], axis=-1),
+        np.stack([-sy, cy * sx, cy * cx], axis=-1),
+    ], axis=1)
+
+
+def rotations_to_angles(rotations: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations -> (n, 3) (yaw, pitch, roll) with R = Rz(yaw) @ Ry(pitch) @ Rx(roll).
+
+    pitch lies in [-pi/2, pi/2]; at pitch = +-pi/2 (gimbal lock) yaw is set to 0.
+    """
+    r = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    pitch = -np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0))
+    locked = np.abs(r[:, 2, 0]) > 1 - 1e-12
+    yaw = np.where(locked, 0.0, np.arctan2(r[:, 1, 0], r[:, 0, 0]))
+    roll = np.where(locked, np.arctan2(-r[:, 1, 2], r[:, 1, 1]), np.arctan2(r[:, 2, 1], r[:, 2, 2]))
+    return np.stack([yaw, pitch, roll], axis=1)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A sensor pose.
+
+    position : (3,) float64, metres, world frame
+    rotation : (3, 3) float64, world-to-camera; rows = camera x, y, z axes in world coordinates
+    """
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+    @classmethod
+    def look_at(cls, position: np.ndarray, target: np.ndarray = np.zeros(3)) -> "Pose":
+        position = np.asarray(position, dtype=np.float64).reshape(3)
+        return cls(position, look_at_rotations(position[None], target)[0])
+
+    @classmethod
+    def from_xyzypr(cls, row: np.ndarray) -> "Pose":
+        """From the authors' (x, y, z, yaw, pitch, roll) row."""
+        row = np.asarray(row, dtype=np.float64).reshape(6)
+        return cls(row[:3].copy(), angles_to_rotations(row[3:])[0])
+
+    @property
+    def direction(self) -> np.ndarray:
+        """(3,) unit optical axis in world coordinates."""
+        return self.rotation[2]
+
+    @property
+    def angles(self) -> np.ndarray:
+        """(3,) (yaw, pitch, roll) in radians, the authors' convention."""
+        return rotations_to_angles(self.rotation)[0]
+
+    @property
+    def xyzypr(self) -> np.ndarray:
+        """(6,) (x, y, z, yaw, pitch, roll): the authors' pose row."""
+        return np.concatenate([self.position, self.angles])
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """(4, 4) camera-to-world transform: columns are the camera axes, then the position."""
+        matrix = np.eye(4)
+        matrix[:3, :3] = self.rotation.T
+        matrix[:3, 3] = self.position
+        return matrix
+
+
+def sphere_positions(count: int, radius: float, layout: str = "hemisphere") -> np.ndarray:
+    """(count, 3) evenly spread points on a sphere (Fibonacci lattice), deterministic.
+
+    "hemisphere" keeps z >= 0; points are equal-area in z, so spacing is uniform.
+    """
+    i = np.arange(count, dtype=np.float64)
+    if layout == "hemisphere":
+        z = (i + 0.5) / count
+    elif layout == "sphere":
+        z = 1.0 - (2.0 * i + 1.0) / count
+    else:
+        raise ValueError(f"layout={layout!r}: must be 'hemisphere' or 'sphere'")
+    ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    phi = i * _GOLDEN_ANGLE
+    return radius * np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1)
+
+
+@dataclass(frozen=True)
+class ViewSet:
+    """Candidate views looking at the object centre.
+
+    positions : (V, 3) float64 metres
+    rotations : (V, 3, 3) float64 world-to-camera
+    """
+
+    positions: np.ndarray
+    rotations: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, index: int) -> Pose:
+        return Pose(self.positions[index], self.rotations[index])
+
+    @property
+    def unit_positions(self) -> np.ndarray:
+        """(V, 3) positions as unit vectors (the regression target's form)."""
+        return self.positions / np.linalg.norm(self.positions, axis=1, keepdims=True)
+
+    def xyzypr(self) -> np.ndarray:
+        """(V, 6) the authors' pose rows of every view."""
+        return np.concatenate([self.positions, rotations_to_angles(self.rotations)], axis=1)
+
+    def nearest(self, position: np.ndarray) -> int:
+        """Index of the view whose direction is closest to ``position`` (3,)'s direction."""
+        direction = np.asarray(position, dtype=np.float64)
+        return int(np.argmax(self.unit_positions @ (direction / np.linalg.norm(direction))))
+
+
+def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
+    """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""
+    positions = sphere_positions(config.count, config.radius, config.layout)
+    return ViewSet(positions, look_at_rotations(positions))
