@@ -10,11 +10,12 @@ the underside of the object is never visible, so only the observable figure can 
 
 from __future__ import annotations
 
+import math
 from typing import Iterable
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
+import numba
 
 from nbvdata.config import CoverageConfig
 from nbvdata.sensor import MeshScanner, Scan
@@ -32,28 +33,23 @@ class SurfaceCoverage:
         self.config = config
         points, _ = trimesh.sample.sample_surface(mesh, config.points, seed=rng)
         self.points = np.asarray(points, dtype=np.float64)
-        self._p_norm = 2 if config.metric == "euclidean" else np.inf
         self.observable: np.ndarray | None = None
+        # Bucket the reference points into cubes of side >= threshold: every match of a scan
+        # point then lies in the 27 cubes around its own.
+        self._cell = config.threshold * 1.001
+        self._low = self.points.min(axis=0) - config.threshold
+        self._dims = (np.floor((self.points.max(axis=0) + config.threshold - self._low) / self._cell)
+                      .astype(np.int64) + 1)
+        cells = _cell_ids(self.points, self._low, self._cell, self._dims)
+        self._cell_order = np.argsort(cells, kind="stable")
+        self._cell_start = np.searchsorted(cells[self._cell_order], np.arange(int(np.prod(self._dims)) + 1))
 
     def covered_by(self, scan_points: np.ndarray) -> np.ndarray:
         """(P,) bool: reference points matched by any of ``scan_points`` (M, 3)."""
-        scan_points = np.asarray(scan_points, dtype=np.float64).reshape(-1, 3)
+        scan_points = np.ascontiguousarray(scan_points, dtype=np.float64).reshape(-1, 3)
         covered = np.zeros(len(self.points), dtype=bool)
-        if len(scan_points) == 0:
-            return covered
-        threshold = self.config.threshold
-        # Only reference points inside the scan's padded bounding box can match.
-        low, high = scan_points.min(axis=0) - threshold, scan_points.max(axis=0) + threshold
-        candidates = np.flatnonzero(np.all((self.points >= low) & (self.points <= high), axis=1))
-        if len(candidates) == 0:
-            return covered
-        tree = cKDTree(scan_points)
-        distance, _ = tree.query(self.points[candidates], k=1, p=self._p_norm,
-                                 distance_upper_bound=threshold * 1.000001)
-        if self.config.metric == "euclidean":
-            covered[candidates] = distance <= threshold
-        else:
-            covered[candidates] = distance < threshold
+        _match_points(scan_points, self.points, self._cell_start, self._cell_order, self._low,
+                      self._cell, self._dims, self.config.threshold, self.config.metric == "box", covered)
         return covered
 
     def covered_by_scans(self, scans: Iterable[Scan]) -> np.ndarray:
@@ -65,7 +61,7 @@ class SurfaceCoverage:
 
     def set_observable(self, scanner: MeshScanner, views: ViewSet) -> np.ndarray:
         """Mark the reference points that at least one of ``views`` covers; returns that mask."""
-        self.observable = self.covered_by_scans(scanner.iter_scans(views))
+        self.observable = self.covered_by_scans(scanner.iter_scans(views, noiseless=True))
         return self.observable
 
     def coverage(self, covered: np.ndarray) -> tuple[float, float]:
@@ -80,3 +76,37 @@ class SurfaceCoverage:
         observable = int(np.count_nonzero(self.observable))
         seen = int(np.count_nonzero(covered & self.observable))
         return total, (seen / observable if observable else float("nan"))
+
+
+def _cell_ids(points: np.ndarray, low: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:
+    index = np.floor((points - low) / cell).astype(np.int64)
+    return (index[:, 0] * dims[1] + index[:, 1]) * dims[2] + index[:, 2]
+
+
+@numba.njit(cache=True)
+def _match_points(scan_points, reference, cell_start, cell_order, low, cell, dims, threshold, box, covered):
+    """Set covered[r] for every reference point r within ``threshold`` of some scan point."""
+    limit = threshold * threshold
+    for m in range(scan_points.shape[0]):
+        x, y, z = scan_points[m, 0], scan_points[m, 1], scan_points[m, 2]
+        ci = int(math.floor((x - low[0]) / cell))
+        cj = int(math.floor((y - low[1]) / cell))
+        ck = int(math.floor((z - low[2]) / cell))
+        if ci < -1 or cj < -1 or ck < -1 or ci > dims[0] or cj > dims[1] or ck > dims[2]:
+            continue  # farther than one cell from every reference point
+        for i in range(max(ci - 1, 0), min(ci + 2, dims[0])):
+            for j in range(max(cj - 1, 0), min(cj + 2, dims[1])):
+                base = (i * dims[1] + j) * dims[2]
+                for c in range(base + max(ck - 1, 0), base + min(ck + 2, dims[2])):
+                    for slot in range(cell_start[c], cell_start[c + 1]):
+                        r = cell_order[slot]
+                        if covered[r]:
+                            continue
+                        dx = reference[r, 0] - x
+                        dy = reference[r, 1] - y
+                        dz = reference[r, 2] - z
+                        if box:
+                            if abs(dx) < threshold and abs(dy) < threshold and abs(dz) < threshold:
+                                covered[r] = True
+                        elif dx * dx + dy * dy + dz * dz <= limit:
+                            covered[r] = True

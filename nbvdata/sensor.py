@@ -76,18 +76,25 @@ class MeshScanner:
         """Scan from one pose; ``rng`` draws the range noise when ``noise_std`` > 0."""
         return self.scan_many([pose], rng)[0]
 
-    def scan_many(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None) -> list[Scan]:
-        """Scan from many poses with as few open3d calls as memory allows."""
-        return list(self.iter_scans(poses, rng))
+    def scan_many(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None,
+                  noiseless: bool = False) -> list[Scan]:
+        """Scan from many poses with as few open3d calls as memory allows.
 
-    def iter_scans(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None) -> Iterator[Scan]:
+        ``noiseless`` casts exact ranges even when the sensor has noise (for ground truth).
+        """
+        return list(self.iter_scans(poses, rng, noiseless))
+
+    def iter_scans(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None,
+                   noiseless: bool = False) -> Iterator[Scan]:
         """Like ``scan_many`` but yields scans batch by batch, so memory stays bounded."""
         if isinstance(poses, ViewSet):
             positions, rotations = poses.positions, poses.rotations
         else:
             positions = np.array([p.position for p in poses], dtype=np.float64).reshape(-1, 3)
             rotations = np.array([p.rotation for p in poses], dtype=np.float64).reshape(-1, 3, 3)
-        if self.config.noise_std > 0 and rng is None:
+        if noiseless:
+            rng = None
+        elif self.config.noise_std > 0 and rng is None:
             raise ValueError("sensor.noise_std > 0 needs a numpy Generator: pass rng=np.random.default_rng(seed)")
         per_call = max(1, _RAYS_PER_CALL // self.rays_per_scan)
         for start in range(0, len(positions), per_call):
@@ -103,7 +110,7 @@ class MeshScanner:
         rays[..., 3:] = directions
         t_hit = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy()
         t_hit = t_hit.reshape(n_views, n_rays)
-        if self.config.noise_std > 0:
+        if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_hit)
             t_hit[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum())).astype(np.float32)
         hit = (t_hit >= self.config.near) & (t_hit <= self.config.far)

@@ -1,0 +1,89 @@
+"""Built-in procedural objects, so the commands work without any mesh files.
+
+Each shape is a few trimesh primitives, deterministic, and normalised like a loaded file. Its
+id is the sha256 of its name, vertices and faces.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Callable
+
+import numpy as np
+import trimesh
+from trimesh.creation import box, capsule, cone, cylinder, icosphere, torus
+
+from nbvdata.config import MeshConfig
+from nbvdata.mesh import ObjectMesh, normalise
+
+
+def _moved(mesh: trimesh.Trimesh, xyz: tuple[float, float, float]) -> trimesh.Trimesh:
+    mesh.apply_translation(xyz)
+    return mesh
+
+
+def _mug() -> trimesh.Trimesh:
+    handle = torus(major_radius=0.3, minor_radius=0.07, major_sections=32, minor_sections=12)
+    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    return trimesh.util.concatenate([cylinder(radius=0.5, height=1.1, sections=48), _moved(handle, (0.5, 0, 0))])
+
+
+def _table_lamp() -> trimesh.Trimesh:
+    return trimesh.util.concatenate([
+        cylinder(radius=0.35, height=0.08, sections=40),
+        _moved(cylinder(radius=0.04, height=0.9, sections=16), (0, 0, 0.45)),
+        _moved(cone(radius=0.3, height=0.35, sections=40), (0, 0, 0.75)),
+    ])
+
+
+def _step_block() -> trimesh.Trimesh:
+    return trimesh.util.concatenate([
+        box((1.0, 0.6, 0.3)), _moved(box((0.5, 0.6, 0.4)), (0.25, 0, 0.35)),
+        _moved(box((0.25, 0.6, 0.3)), (-0.375, 0, 0.3)),
+    ])
+
+
+def _snowman() -> trimesh.Trimesh:
+    return trimesh.util.concatenate([
+        icosphere(subdivisions=3, radius=0.5), _moved(icosphere(subdivisions=3, radius=0.33), (0, 0, 0.7)),
+        _moved(cone(radius=0.06, height=0.3, sections=16), (0, -0.3, 0.72)),
+    ])
+
+
+def _ring() -> trimesh.Trimesh:
+    return torus(major_radius=0.5, minor_radius=0.15, major_sections=48, minor_sections=16)
+
+
+def _pill() -> trimesh.Trimesh:
+    pill = capsule(height=0.8, radius=0.25, count=(24, 24))
+    pill.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 3, [0, 1, 0]))
+    return pill
+
+
+BUILTIN_SHAPES: dict[str, Callable[[], trimesh.Trimesh]] = {
+    "mug": _mug,
+    "table_lamp": _table_lamp,
+    "step_block": _step_block,
+    "snowman": _snowman,
+    "ring": _ring,
+    "pill": _pill,
+}
+
+
+def builtin_object(name: str, config: MeshConfig = MeshConfig()) -> ObjectMesh:
+    """One built-in shape, normalised into the reconstruction frame."""
+    if name not in BUILTIN_SHAPES:
+        raise KeyError(f"unknown built-in shape {name!r}; known: {', '.join(BUILTIN_SHAPES)}")
+    raw = BUILTIN_SHAPES[name]()
+    mesh = normalise(raw, MeshConfig(object_size=config.object_size, up_axis="z"), name)
+    digest = hashlib.sha256(name.encode())
+    digest.update(np.ascontiguousarray(raw.vertices, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(raw.faces, dtype=np.int64).tobytes())
+    extent = float(np.ptp(raw.vertices, axis=0).max())
+    return ObjectMesh(mesh=mesh, mesh_id=digest.hexdigest(), source=f"builtin:{name}",
+                      scale=config.object_size / extent)
+
+
+def builtin_objects(config: MeshConfig = MeshConfig()) -> list[ObjectMesh]:
+    """All built-in shapes, in a fixed order."""
+    return [builtin_object(name, config) for name in BUILTIN_SHAPES]

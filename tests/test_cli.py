@@ -1,0 +1,37 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nbvdata.cli import main
+
+
+def test_demo_writes_a_png(tmp_path, capsys):
+    out = tmp_path / "demo.png"
+    assert main(["demo", "--scans", "2", "--set", "views.count=50", "--set", "coverage.points=2000",
+                 "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out
+    assert "scan 2:" in printed and "coverage" in printed
+
+
+def test_show_renders_a_saved_grid(tmp_path):
+    grid = np.full(32 ** 3, 0.5, dtype=np.float32)
+    grid[:1000] = 0.4
+    grid[16000:16100] = 0.7
+    np.save(tmp_path / "g.npy", grid)
+    out = tmp_path / "g.png"
+    assert main(["show", str(tmp_path / "g.npy"), "--highlight", "3", "--out", str(out)]) == 0
+    assert out.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["demo", "--set", "views.cont=3"], "did you mean 'views.count'"),
+    (["demo", "--mesh", "missing.obj"], "no such file"),
+    (["show", "nothing.npy"], "no such file"),
+    (["show", "--views", "0,9999"], "out of range"),
+])
+def test_user_errors_are_one_line_and_exit_2(argv, message, capsys, tmp_path):
+    assert main(argv + ["--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+import trimesh
+
+from nbvdata.config import SensorConfig
+from nbvdata.sensor import MeshScanner, camera_rays
+from nbvdata.views import Pose
+
+SMALL = SensorConfig(width=40, height=30)
+
+
+@pytest.fixture(scope="module")
+def box_scanner():
+    return MeshScanner(trimesh.creation.box((0.2, 0.2, 0.2)), SMALL)
+
+
+def test_camera_rays_span_the_field_of_view():
+    rays = camera_rays(SMALL)
+    assert rays.shape == (40 * 30, 3)
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=1), 1)
+    half_h = np.arctan2(rays[:, 0], rays[:, 2])
+    assert np.isclose(half_h.max(), 0.385, atol=0.77 / 40)
+    assert (rays[:, 2] > 0).all()
+
+
+def test_box_seen_from_plus_x_returns_its_plus_x_face(box_scanner):
+    scan = box_scanner.scan(Pose.look_at([0.4, 0, 0]))
+    assert scan.points.dtype == np.float32 and scan.points.shape == (1200, 3)
+    hits = scan.hit_points
+    assert 0 < len(hits) < 1200
+    np.testing.assert_allclose(hits[:, 0], 0.1, atol=1e-6)
+    far = np.linalg.norm(scan.points[~scan.hit] - scan.origin, axis=1)
+    np.testing.assert_allclose(far, 2 * SMALL.far, rtol=1e-6)
+
+
+def test_batched_scans_equal_single_scans(box_scanner):
+    poses = [Pose.look_at(p) for p in ([0.4, 0, 0], [0, 0.3, 0.2], [0.1, -0.1, 0.35])]
+    batched = box_scanner.scan_many(poses)
+    for pose, scan in zip(poses, batched):
+        single = box_scanner.scan(pose)
+        np.testing.assert_array_equal(single.points, scan.points)
+        np.testing.assert_array_equal(single.hit, scan.hit)
+
+
+def test_noise_is_seeded_and_needs_a_generator():
+    noisy = MeshScanner(trimesh.creation.box((0.2, 0.2, 0.2)), SensorConfig(width=40, height=30, noise_std=0.002))
+    pose = Pose.look_at([0.4, 0, 0])
+    a = noisy.scan(pose, np.random.default_rng(7))
+    b = noisy.scan(pose, np.random.default_rng(7))
+    np.testing.assert_array_equal(a.points, b.points)
+    assert 0.0005 < np.std(a.hit_points[:, 0]) < 0.004
+    with pytest.raises(ValueError, match="Generator"):
+        noisy.scan(pose)
+    exact = noisy.scan_many([pose], noiseless=True)[0]
+    np.testing.assert_allclose(exact.hit_points[:, 0], 0.1, atol=1e-6)
+
+
+def test_near_and_far_range_limit_returns():
+    mesh = trimesh.creation.box((0.2, 0.2, 0.2))
+    pose = Pose.look_at([0.4, 0, 0])
+    assert not MeshScanner(mesh, SensorConfig(width=8, height=6, far=0.25)).scan(pose).hit.any()
+    assert not MeshScanner(mesh, SensorConfig(width=8, height=6, near=0.35)).scan(pose).hit.any()
