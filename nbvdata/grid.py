@@ -224,9 +224,11 @@ def _skip_to_grid(k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, 
     return k0, k1, k2, t0, t1, t2, skipped, entry_t
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
-    """Mark free every grid voxel OctoMap's computeRayKeys(origin, end) returns."""
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _walk_start(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
+    """Start OctoMap's computeRayKeys(origin, end): mark the origin voxel, set up the DDA and
+    fast-forward it to the grid. Returns (active, keys, pending times, steps, deltas, end keys,
+    length, was_inside)."""
     n = free_mark.shape[0]
     inv_resolution = 1.0 / resolution
     k0 = _coord_to_key(ox, inv_resolution)
@@ -235,9 +237,10 @@ def _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
     end0 = _coord_to_key(ex, inv_resolution)
     end1 = _coord_to_key(ey, inv_resolution)
     end2 = _coord_to_key(ez, inv_resolution)
-    if k0 == end0 and k1 == end1 and k2 == end2:
-        return
-    was_inside = _mark(free_mark, k0, k1, k2, first_key, n)
+    active = not (k0 == end0 and k1 == end1 and k2 == end2)
+    was_inside = False
+    if active:
+        was_inside = _mark(free_mark, k0, k1, k2, first_key, n)
 
     d0, d1, d2 = ex - ox, ey - oy, ez - oz  # float32, as octomath::Vector3
     length = np.float32(math.sqrt(np.float64(d0 * d0 + d1 * d1 + d2 * d2)))
@@ -247,55 +250,84 @@ def _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
     s2, t2, dt2 = _axis_setup(k2, oz, d2, resolution)
     length64 = np.float64(length)
 
-    if not was_inside and _end_not_before_grid(end0, end1, end2, s0, s1, s2, first_key, n):
+    if active and not was_inside and _end_not_before_grid(end0, end1, end2, s0, s1, s2, first_key, n):
         k0, k1, k2, t0, t1, t2, skipped, entry_t = _skip_to_grid(
             k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n)
         if skipped < 0 or (skipped > 0 and entry_t > length64):
-            return  # never enters the grid, or ends before it
+            active = False  # never enters the grid, or ends before it
+    return (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, end0, end1, end2,
+            length64, was_inside)
 
-    while True:
-        # OctoMap's axis choice (smallest t; on ties the higher axis), written with selects
-        # instead of branches: the choice is unpredictable, so branches would mispredict.
-        c0 = (t0 < t1) & (t0 < t2)
-        c1 = (t0 >= t1) & (t1 < t2)
-        c2 = not (c0 or c1)
-        k0 += s0 if c0 else 0
-        k1 += s1 if c1 else 0
-        k2 += s2 if c2 else 0
-        t0 = t0 + dt0 if c0 else t0
-        t1 = t1 + dt1 if c1 else t1
-        t2 = t2 + dt2 if c2 else t2
-        if k0 == end0 and k1 == end1 and k2 == end2:
-            return
-        if min(t0, min(t1, t2)) > length64:
-            return
-        inside = _mark(free_mark, k0, k1, k2, first_key, n)
-        if was_inside and not inside:
-            return  # left the grid cube: a straight ray cannot come back into it
-        was_inside = was_inside or inside
+
+@numba.njit(cache=True, inline="always")
+def _walk_step(k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, end0, end1, end2, length64,
+               was_inside, first_key, free_mark):
+    """One step of OctoMap's DDA; marks the new voxel free. Returns (active, keys, times, was_inside)."""
+    # OctoMap's axis choice (smallest t; on ties the higher axis), written with selects
+    # instead of branches: the choice is unpredictable, so branches would mispredict.
+    c0 = (t0 < t1) & (t0 < t2)
+    c1 = (t0 >= t1) & (t1 < t2)
+    c2 = not (c0 or c1)
+    k0 += s0 if c0 else 0
+    k1 += s1 if c1 else 0
+    k2 += s2 if c2 else 0
+    t0 = t0 + dt0 if c0 else t0
+    t1 = t1 + dt1 if c1 else t1
+    t2 = t2 + dt2 if c2 else t2
+    if k0 == end0 and k1 == end1 and k2 == end2:
+        return False, k0, k1, k2, t0, t1, t2, was_inside
+    if min(t0, min(t1, t2)) > length64:
+        return False, k0, k1, k2, t0, t1, t2, was_inside
+    inside = _mark(free_mark, k0, k1, k2, first_key, free_mark.shape[0])
+    if was_inside and not inside:
+        return False, k0, k1, k2, t0, t1, t2, was_inside  # left the cube: a ray cannot come back
+    return True, k0, k1, k2, t0, t1, t2, was_inside or inside
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _free_walk_end(ox, oy, oz, px, py, pz, max_range, inv_resolution, first_key, occupied_mark):
+    """OctoMap computeUpdate for one point: mark its voxel occupied when within range; return
+    where the free-space walk ends (the point, or the point at max_range along the ray)."""
+    dx, dy, dz = px - ox, py - oy, pz - oz
+    distance = math.sqrt(np.float64(dx * dx + dy * dy + dz * dz))
+    if max_range < 0.0 or distance <= max_range:
+        _mark(occupied_mark, _coord_to_key(px, inv_resolution), _coord_to_key(py, inv_resolution),
+              _coord_to_key(pz, inv_resolution), first_key, occupied_mark.shape[0])
+        return px, py, pz
+    length = np.float32(distance)
+    reach = np.float32(max_range)
+    return ox + (dx / length) * reach, oy + (dy / length) * reach, oz + (dz / length) * reach
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def _mark_rays(origin, points, max_range, resolution, first_key, free_mark, occupied_mark):
-    """Mark the voxels a scan frees and occupies (OctoMap computeUpdate, before the hit-wins rule)."""
-    n = free_mark.shape[0]
+    """Mark the voxels a scan frees and occupies (OctoMap computeUpdate, before the hit-wins rule).
+
+    Rays are walked two at a time in one loop: each DDA step is a short chain of dependent
+    operations, and interleaving two independent chains keeps the core busy.
+    """
     inv_resolution = 1.0 / resolution
     ox, oy, oz = origin[0], origin[1], origin[2]
-    for r in numba.prange(points.shape[0]):
-        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
-        dx, dy, dz = px - ox, py - oy, pz - oz
-        distance = math.sqrt(np.float64(dx * dx + dy * dy + dz * dz))
-        if max_range < 0.0 or distance <= max_range:
-            _walk_ray(ox, oy, oz, px, py, pz, resolution, first_key, free_mark)
-            _mark(occupied_mark, _coord_to_key(px, inv_resolution), _coord_to_key(py, inv_resolution),
-                  _coord_to_key(pz, inv_resolution), first_key, n)
-        else:
-            length = np.float32(distance)
-            reach = np.float32(max_range)
-            ex = ox + (dx / length) * reach
-            ey = oy + (dy / length) * reach
-            ez = oz + (dz / length) * reach
-            _walk_ray(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark)
+    count = points.shape[0]
+    for pair in numba.prange((count + 1) // 2):
+        a, b = 2 * pair, min(2 * pair + 1, count - 1)  # an odd count walks the last ray twice
+        ex, ey, ez = _free_walk_end(ox, oy, oz, points[a, 0], points[a, 1], points[a, 2], max_range,
+                                    inv_resolution, first_key, occupied_mark)
+        (on_a, a0, a1, a2, ta0, ta1, ta2, sa0, sa1, sa2, da0, da1, da2, ea0, ea1, ea2, la,
+         ina) = _walk_start(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark)
+        ex, ey, ez = _free_walk_end(ox, oy, oz, points[b, 0], points[b, 1], points[b, 2], max_range,
+                                    inv_resolution, first_key, occupied_mark)
+        (on_b, b0, b1, b2, tb0, tb1, tb2, sb0, sb1, sb2, db0, db1, db2, eb0, eb1, eb2, lb,
+         inb) = _walk_start(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark)
+        while on_a or on_b:
+            if on_a:
+                on_a, a0, a1, a2, ta0, ta1, ta2, ina = _walk_step(
+                    a0, a1, a2, ta0, ta1, ta2, sa0, sa1, sa2, da0, da1, da2, ea0, ea1, ea2, la, ina,
+                    first_key, free_mark)
+            if on_b:
+                on_b, b0, b1, b2, tb0, tb1, tb2, inb = _walk_step(
+                    b0, b1, b2, tb0, tb1, tb2, sb0, sb1, sb2, db0, db1, db2, eb0, eb1, eb2, lb, inb,
+                    first_key, free_mark)
 
 
 @numba.njit(cache=True)
