@@ -62,12 +62,6 @@ class OccupancyGrid:
     def size(self) -> int:
         return self.config.size
 
-    def copy(self) -> "OccupancyGrid":
-        other = OccupancyGrid(self.config)
-        other.log_odds[...] = self.log_odds
-        other.observed[...] = self.observed
-        return other
-
     def integrate(self, scan: Scan, max_range: float) -> None:
         """Insert one scan, as OctoMap's insertPointCloud(points, origin, maxrange=max_range)."""
         points = np.ascontiguousarray(scan.points, dtype=np.float32)

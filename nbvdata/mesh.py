@@ -78,10 +78,8 @@ def load_mesh(path: str | Path, config: MeshConfig = MeshConfig()) -> ObjectMesh
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # trimesh raises many kinds for damaged files
         raise MeshError(f"{path}: unreadable ({type(error).__name__}: {str(error)[:120]})") from None
-    mesh = _as_single_mesh(loaded, path)
-    mesh = normalise(mesh, config, path)
-    return ObjectMesh(mesh=mesh, mesh_id=sha256_file(path), source=path.name,
-                      scale=float(config.object_size / _max_extent(loaded)))
+    mesh, scale = normalise(_as_single_mesh(loaded, path), config, path)
+    return ObjectMesh(mesh=mesh, mesh_id=sha256_file(path), source=path.name, scale=scale)
 
 
 def _as_single_mesh(loaded: object, path: Path) -> trimesh.Trimesh:
@@ -93,13 +91,9 @@ def _as_single_mesh(loaded: object, path: Path) -> trimesh.Trimesh:
     return loaded
 
 
-def _max_extent(mesh: trimesh.Trimesh) -> float:
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)[np.unique(mesh.faces)]
-    return float(np.ptp(vertices, axis=0).max())
-
-
-def normalise(mesh: trimesh.Trimesh, config: MeshConfig, name: str | Path = "mesh") -> trimesh.Trimesh:
-    """Copy of ``mesh`` turned +z up, centred on its bounding box, largest side = object_size.
+def normalise(mesh: trimesh.Trimesh, config: MeshConfig, name: str | Path = "mesh") -> tuple[trimesh.Trimesh, float]:
+    """Copy of ``mesh`` turned +z up, centred on its bounding box, largest side = object_size,
+    and the scale factor applied.
 
     Only vertices used by a face count, so stray points in a file do not shift the object.
     """
@@ -116,5 +110,6 @@ def normalise(mesh: trimesh.Trimesh, config: MeshConfig, name: str | Path = "mes
     extent = float((high - low).max())
     if not extent > 0:
         raise MeshError(f"{name}: zero extent (all vertices coincide); the file holds no usable shape")
-    vertices = (vertices - (low + high) / 2) * (config.object_size / extent)
-    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    scale = config.object_size / extent
+    vertices = (vertices - (low + high) / 2) * scale
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False), scale

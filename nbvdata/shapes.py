@@ -75,13 +75,11 @@ def builtin_object(name: str, config: MeshConfig = MeshConfig()) -> ObjectMesh:
     if name not in BUILTIN_SHAPES:
         raise KeyError(f"unknown built-in shape {name!r}; known: {', '.join(BUILTIN_SHAPES)}")
     raw = BUILTIN_SHAPES[name]()
-    mesh = normalise(raw, MeshConfig(object_size=config.object_size, up_axis="z"), name)
+    mesh, scale = normalise(raw, MeshConfig(object_size=config.object_size, up_axis="z"), name)
     digest = hashlib.sha256(name.encode())
     digest.update(np.ascontiguousarray(raw.vertices, dtype=np.float64).tobytes())
     digest.update(np.ascontiguousarray(raw.faces, dtype=np.int64).tobytes())
-    extent = float(np.ptp(raw.vertices, axis=0).max())
-    return ObjectMesh(mesh=mesh, mesh_id=digest.hexdigest(), source=f"builtin:{name}",
-                      scale=config.object_size / extent)
+    return ObjectMesh(mesh=mesh, mesh_id=digest.hexdigest(), source=f"builtin:{name}", scale=scale)
 
 
 def builtin_objects(config: MeshConfig = MeshConfig()) -> list[ObjectMesh]:

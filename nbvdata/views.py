@@ -151,11 +151,6 @@ class ViewSet:
         """(V, 6) the authors' pose rows of every view."""
         return np.concatenate([self.positions, rotations_to_angles(self.rotations)], axis=1)
 
-    def nearest(self, position: np.ndarray) -> int:
-        """Index of the view whose direction is closest to ``position`` (3,)'s direction."""
-        direction = np.asarray(position, dtype=np.float64)
-        return int(np.argmax(self.unit_positions @ (direction / np.linalg.norm(direction))))
-
 
 def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
     """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""

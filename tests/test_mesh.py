@@ -27,6 +27,7 @@ def test_formats_load_and_normalise(tmp_path, suffix):
     np.testing.assert_allclose(np.ptp(bounds, axis=0), [0.2, 0.1, 0.05], rtol=1e-6)
     assert obj.mesh_id == hashlib.sha256(path.read_bytes()).hexdigest()
     assert obj.source == path.name
+    assert obj.scale == pytest.approx(0.1)
 
 
 def test_scene_with_several_bodies_is_merged(tmp_path):

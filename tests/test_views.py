@@ -52,6 +52,11 @@ def test_angle_round_trips(rng):
     np.testing.assert_allclose(again.rotation, pose.rotation, atol=1e-12)
     np.testing.assert_allclose(pose.matrix[:3, :3] @ np.array([0, 0, 1.0]), pose.direction)
     np.testing.assert_allclose(pose.matrix[:3, 3], pose.position)
+    views = view_sphere(ViewConfig(count=50))
+    rows = views.xyzypr()
+    assert rows.shape == (50, 6)
+    np.testing.assert_allclose(angles_to_rotations(rows[:, 3:]), views.rotations, atol=1e-12)
+    np.testing.assert_array_equal(rows[:, :3], views.positions)
 
 
 def test_gimbal_lock_rows_round_trip():
