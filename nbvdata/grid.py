@@ -104,8 +104,7 @@ def _coord_to_key(coordinate, inv_resolution):
 def _mark(mark, key0, key1, key2, first_key, n):
     i, j, k = key0 - first_key, key1 - first_key, key2 - first_key
     if 0 <= i < n and 0 <= j < n and 0 <= k < n:
-        if mark[i, j, k] == 0:  # read first: threads then share the cache line instead of fighting for it
-            mark[i, j, k] = 1
+        mark[i, j, k] = 1
         return True
     return False
 
