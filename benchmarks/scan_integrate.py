@@ -1,8 +1,8 @@
 """Benchmark: one 176 x 144 scan cast and integrated into the 32^3 grid, next to OctoMap.
 
 For each mesh, scans from random views of the default hemisphere are cast (open3d) and
-integrated (nbvdata.grid); the same scans go through OctoMap's insertPointCloud (pyoctomap)
-in the same process. Times are medians over all scans; the ratio is the headline figure.
+integrated (nbvdata.grid); the same scans then go through OctoMap's insertPointCloud
+(pyoctomap) in a second pass of the same process. Times are medians over all scans; the ratio is the headline figure.
 
     python benchmarks/scan_integrate.py [--scans 40] [--threads 2]
 

@@ -20,8 +20,6 @@ from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 
-log = logging.getLogger("nbvdata")
-
 
 class UsageError(Exception):
     """A user error the command reports in one line."""
@@ -156,7 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     try:
         return args.func(args)
     except (ConfigError, MeshError, UsageError) as error:
