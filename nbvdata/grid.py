@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -34,6 +35,18 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 def _logodds(probability: float) -> np.float32:
     """OctoMap's ``logodds``: computed in double, stored as float."""
     return np.float32(math.log(probability / (1.0 - probability)))
+
+
+@dataclass(frozen=True)
+class ScanUpdate:
+    """The voxels one scan updates, as flat C-order indices into the grid.
+
+    occupied : (K,) int32 voxels holding a ray's end point (get the hit log-odds)
+    free : (F,) int32 voxels only passed through (get the miss log-odds); disjoint from occupied
+    """
+
+    occupied: np.ndarray
+    free: np.ndarray
 
 
 class OccupancyGrid:
@@ -64,14 +77,31 @@ class OccupancyGrid:
 
     def integrate(self, scan: Scan, max_range: float) -> None:
         """Insert one scan, as OctoMap's insertPointCloud(points, origin, maxrange=max_range)."""
+        self.apply(self.scan_update(scan, max_range))
+
+    def scan_update(self, scan: Scan, max_range: float) -> "ScanUpdate":
+        """The voxels ``scan`` occupies and frees; independent of the grid's state, so reusable.
+
+        A noise-free scan from a fixed view always gives the same update: ``nbvdata.episode``
+        computes it once per (mesh, view) and applies it as often as the view is scanned.
+        """
         points = np.ascontiguousarray(scan.points, dtype=np.float32)
         origin = np.ascontiguousarray(scan.origin, dtype=np.float32)
         self._free_mark[...] = 0
         self._occupied_mark[...] = 0
         _mark_rays(origin, points, float(max_range), self.resolution, self.first_key,
                    self._free_mark, self._occupied_mark)
-        _apply_marks(self.log_odds, self.observed, self._free_mark, self._occupied_mark,
-                     self._hit, self._miss, self._clamp[0], self._clamp[1])
+        occupied = np.flatnonzero(self._occupied_mark).astype(np.int32)
+        free = np.flatnonzero((self._free_mark != 0) & (self._occupied_mark == 0)).astype(np.int32)
+        return ScanUpdate(occupied, free)
+
+    def apply(self, update: "ScanUpdate") -> None:
+        """One update per voxel of ``update``: add the hit log-odds where occupied, the miss
+        log-odds where free, then clamp (a hit wins over a miss: the sets are disjoint)."""
+        _apply_update(self.log_odds.reshape(-1), self.observed.reshape(-1), update.occupied,
+                      self._hit, self._clamp[0], self._clamp[1])
+        _apply_update(self.log_odds.reshape(-1), self.observed.reshape(-1), update.free,
+                      self._miss, self._clamp[0], self._clamp[1])
 
     def probabilities(self) -> np.ndarray:
         """(n, n, n) float32 occupancy probability; exactly 0.5 where unknown (authors' encoding)."""
@@ -324,21 +354,13 @@ def _mark_rays(origin, points, max_range, resolution, first_key, free_mark, occu
 
 
 @numba.njit(cache=True)
-def _apply_marks(log_odds, observed, free_mark, occupied_mark, hit, miss, clamp_min, clamp_max):
-    """One update per marked voxel: hit where occupied, else miss where free; then clamp."""
-    flat_lo, flat_seen = log_odds.ravel(), observed.ravel()
-    flat_free, flat_occ = free_mark.ravel(), occupied_mark.ravel()
-    for v in range(flat_lo.size):
-        if flat_occ[v]:
-            update = hit
-        elif flat_free[v]:
-            update = miss
-        else:
-            continue
-        value = flat_lo[v] + update
+def _apply_update(log_odds, observed, voxels, update, clamp_min, clamp_max):
+    """Add ``update`` to the flat log-odds of ``voxels`` and clamp, as OctoMap's updateNodeLogOdds."""
+    for v in voxels:
+        value = log_odds[v] + update
         if value < clamp_min:
             value = clamp_min
         elif value > clamp_max:
             value = clamp_max
-        flat_lo[v] = value
-        flat_seen[v] = True
+        log_odds[v] = value
+        observed[v] = True
