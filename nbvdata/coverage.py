@@ -59,9 +59,16 @@ class SurfaceCoverage:
             covered |= self.covered_by(scan.hit_points)
         return covered
 
+    def covered_by_views(self, scanner: MeshScanner, views: ViewSet) -> np.ndarray:
+        """(V, P) bool: the reference points a noise-free scan from each view covers."""
+        covered = np.zeros((len(views), len(self.points)), dtype=bool)
+        for v, scan in enumerate(scanner.iter_scans(views, noiseless=True)):
+            covered[v] = self.covered_by(scan.hit_points)
+        return covered
+
     def set_observable(self, scanner: MeshScanner, views: ViewSet) -> np.ndarray:
         """Mark the reference points that at least one of ``views`` covers; returns that mask."""
-        self.observable = self.covered_by_scans(scanner.iter_scans(views, noiseless=True))
+        self.observable = self.covered_by_views(scanner, views).any(axis=0)
         return self.observable
 
     def coverage(self, covered: np.ndarray) -> tuple[float, float]:

@@ -1,5 +1,6 @@
-"""One object in the reconstruction scene: its mesh, the candidate views, the sensor and the
-coverage reference, built once per mesh and shared by everything that simulates it."""
+"""One object in the reconstruction scene: its mesh, the candidate views, the sensor, the
+coverage reference and the exhaustive-search oracle, built once per mesh and shared by
+everything that simulates it."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from nbvdata.config import SimConfig
 from nbvdata.coverage import SurfaceCoverage
 from nbvdata.grid import OccupancyGrid
 from nbvdata.mesh import ObjectMesh
+from nbvdata.oracle import ViewOracle
 from nbvdata.sensor import MeshScanner, Scan
 from nbvdata.views import ViewSet, view_sphere
 
@@ -24,15 +26,22 @@ class Scene:
     views: ViewSet
     scanner: MeshScanner
     coverage: SurfaceCoverage
+    oracle: ViewOracle
 
     @classmethod
-    def build(cls, obj: ObjectMesh, config: SimConfig, rng: np.random.Generator) -> "Scene":
-        """Cast the scene; ``rng`` draws the coverage reference points. Marks what the views can observe."""
+    def build(cls, obj: ObjectMesh, config: SimConfig, rng: np.random.Generator, threads: int = 0) -> "Scene":
+        """Cast the scene; ``rng`` draws the coverage reference points.
+
+        Scans the object once from every candidate view (noise-free) to record what each view
+        covers: the oracle's bit matrix, and the observable points (their union).
+        ``threads`` limits the ray casting threads (0 = all cores).
+        """
         views = view_sphere(config.views)
-        scanner = MeshScanner(obj.mesh, config.sensor)
+        scanner = MeshScanner(obj.mesh, config.sensor, threads)
         coverage = SurfaceCoverage(obj.mesh, config.coverage, rng)
-        coverage.set_observable(scanner, views)
-        return cls(config, obj, views, scanner, coverage)
+        visible = coverage.covered_by_views(scanner, views)
+        coverage.observable = visible.any(axis=0)
+        return cls(config, obj, views, scanner, coverage, ViewOracle(visible))
 
     def new_grid(self) -> OccupancyGrid:
         return OccupancyGrid(self.config.grid)

@@ -59,8 +59,10 @@ def camera_rays(config: SensorConfig) -> np.ndarray:
 class MeshScanner:
     """Casts range scans of one mesh; the open3d scene is built once, in the constructor."""
 
-    def __init__(self, mesh: trimesh.Trimesh, config: SensorConfig = SensorConfig()):
+    def __init__(self, mesh: trimesh.Trimesh, config: SensorConfig = SensorConfig(), threads: int = 0):
+        """``threads``: open3d casting threads, 0 = all cores (parallel workers pass 1)."""
         self.config = config
+        self.threads = threads
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(
             o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
@@ -108,7 +110,7 @@ class MeshScanner:
         rays = np.empty((n_views, n_rays, 6), dtype=np.float32)
         rays[..., :3] = origins[:, None, :]
         rays[..., 3:] = directions
-        t_hit = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy()
+        t_hit = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=self.threads)["t_hit"].numpy()
         t_hit = t_hit.reshape(n_views, n_rays)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_hit)
