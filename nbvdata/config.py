@@ -128,14 +128,69 @@ class CoverageConfig:
 
 
 @dataclass(frozen=True)
+class OracleConfig:
+    min_overlap: float = 0.2
+    """A candidate view is valid when at least this fraction of the surface it would observe is
+    already covered (the authors' 20 % registration overlap)."""
+
+    def __post_init__(self) -> None:
+        _check(0 <= self.min_overlap <= 1, f"oracle.min_overlap={self.min_overlap}: must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    runs_per_mesh: int = 20
+    """Reconstruction runs per mesh, each from its own random start view."""
+    max_scans: int = 10
+    """Scans per run at most (the paper evaluates 10); a run records at most this many states."""
+    min_gain: float = 0.002
+    """A run stops when no valid view would raise the observable coverage by at least this."""
+    seed: int = 0
+    """Global seed; each mesh's and run's seeds derive from it and the mesh id."""
+
+    def __post_init__(self) -> None:
+        _check(self.runs_per_mesh >= 1, f"episode.runs_per_mesh={self.runs_per_mesh}: must be >= 1")
+        _check(self.max_scans >= 1, f"episode.max_scans={self.max_scans}: must be >= 1")
+        _check(0 <= self.min_gain <= 1, f"episode.min_gain={self.min_gain}: must be in [0, 1]")
+        _check(self.seed >= 0, f"episode.seed={self.seed}: must be >= 0")
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """How ``nbvdata generate`` spreads its work. Never changes the generated arrays."""
+
+    workers: int = 0
+    """Parallel workers (one thread each); 0 = one per CPU core."""
+    backend: Literal["loky", "multiprocessing", "threading", "dask"] = "loky"
+    """joblib backend; "dask" runs the units on the Dask cluster at ``scheduler``."""
+    scheduler: str | None = None
+    """Dask scheduler address (e.g. tcp://10.0.0.5:8786) for backend "dask"; none = a local cluster."""
+    runs_per_shard: int = 0
+    """Runs per work unit and shard; 0 = all runs of a mesh in one shard."""
+
+    def __post_init__(self) -> None:
+        _check(self.workers >= 0, f"generate.workers={self.workers}: must be >= 0 (0 = all cores)")
+        _check(self.runs_per_shard >= 0, f"generate.runs_per_shard={self.runs_per_shard}: must be >= 0")
+
+
+@dataclass(frozen=True)
 class SimConfig:
-    """Everything that defines one simulated reconstruction scene."""
+    """Every setting: the scene (mesh .. coverage), the labelling and runs, and the job layout."""
 
     mesh: MeshConfig = field(default_factory=MeshConfig)
     views: ViewConfig = field(default_factory=ViewConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
+    oracle: OracleConfig = field(default_factory=OracleConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    generate: GenerateConfig = field(default_factory=GenerateConfig)
+
+    def dataset_dict(self) -> dict[str, Any]:
+        """The settings that determine the generated data (all but ``generate``)."""
+        data = to_dict(self)
+        del data["generate"]
+        return data
 
 
 # ---------------------------------------------------------------------------------------------

@@ -37,6 +37,11 @@ def _logodds(probability: float) -> np.float32:
     return np.float32(math.log(probability / (1.0 - probability)))
 
 
+def probability(log_odds: np.ndarray) -> np.ndarray:
+    """float32 occupancy probability of float32 log-odds (computed in float64); 0 -> exactly 0.5."""
+    return (1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class ScanUpdate:
     """The voxels one scan updates, as flat C-order indices into the grid.
@@ -105,8 +110,7 @@ class OccupancyGrid:
 
     def probabilities(self) -> np.ndarray:
         """(n, n, n) float32 occupancy probability; exactly 0.5 where unknown (authors' encoding)."""
-        p = 1.0 - 1.0 / (1.0 + np.exp(self.log_odds.astype(np.float64)))
-        return np.where(self.observed, p, 0.5).astype(np.float32)
+        return np.where(self.observed, probability(self.log_odds), np.float32(0.5))
 
     def counts(self) -> dict[str, int]:
         """Voxels that are occupied (p > 0.5), free (p < 0.5) and unknown (never observed or p = 0.5)."""
