@@ -1,0 +1,211 @@
+"""HDF5 shards of labelled reconstruction states: the dataset's file format.
+
+Schema version 1. A shard holds the samples of one work unit (one mesh, a range of runs).
+N samples, V candidate views, n = ``grid.size``. Per-sample arrays are chunked one sample per
+chunk and gzip-compressed (level 4); every dataset is written without timestamps, so the same
+data gives the same bytes.
+
+Datasets::
+
+    grids          (N, n, n, n) uint8    palette codes (uint16 if a shard has > 256 distinct values);
+                                         grid_palette[grids] is the occupancy grid
+    grid_palette   (K,) float32          probability of each code, the authors' encoding (OctoMap
+                                         probabilities, exact: code 0 is 0.5 = unknown)
+    nbv_index      (N,) int32            ground-truth next-best-view, a row of view_positions
+    nbv_pose       (N, 6) float64        that view as x, y, z (m), yaw, pitch, roll (rad), the authors'
+                                         convention (R = Rz @ Ry @ Rx, world to camera)
+    nbv_position   (N, 3) float32        that view's position / radius: the unit vector networks regress
+    gains          (N, V) float32        every view's gain: observable coverage it would add
+    overlaps       (N, V) float32        every view's overlap: covered fraction of what it would see
+    coverage       (N, 2) float32        observable coverage of the state, and after scanning the NBV
+    mesh_id        (N,) S64              mesh id (sha256 hex), described in the ``meshes`` attribute
+    run            (N,) int32            run number within the mesh
+    step           (N,) int32            scans taken in the state (1 = just the start view)
+    last_view      (N,) int32            the view scanned last (the start view when step = 1)
+    seed           (N,) int64            the run's seed (its range noise, if any)
+    view_positions (V, 3) float64        candidate view positions, metres
+    view_poses     (V, 6) float64        candidate view poses (x, y, z, yaw, pitch, roll)
+
+Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
+determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
+``runs`` ([first, stop) run numbers of the unit).
+
+A shard is written under a temporary name and renamed when complete: it is whole or absent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import yaml
+
+from nbvdata.grid import probability
+
+SCHEMA_VERSION = 1
+PARTIAL_SUFFIX = ".partial"
+
+PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
+    "grids": (None, lambda v, n: (n, n, n)),
+    "nbv_index": (np.int32, lambda v, n: ()),
+    "nbv_pose": (np.float64, lambda v, n: (6,)),
+    "nbv_position": (np.float32, lambda v, n: (3,)),
+    "gains": (np.float32, lambda v, n: (v,)),
+    "overlaps": (np.float32, lambda v, n: (v,)),
+    "coverage": (np.float32, lambda v, n: (2,)),
+    "mesh_id": ("S64", lambda v, n: ()),
+    "run": (np.int32, lambda v, n: ()),
+    "step": (np.int32, lambda v, n: ()),
+    "last_view": (np.int32, lambda v, n: ()),
+    "seed": (np.int64, lambda v, n: ()),
+}
+PER_SHARD = ("grid_palette", "view_positions", "view_poses")
+
+
+class ShardError(ValueError):
+    """A shard that cannot be read; the message names the file and the fix."""
+
+
+class GridPalette:
+    """The distinct log-odds values of a shard's grids, coded in order of first appearance."""
+
+    def __init__(self):
+        self._codes: dict[float, int] = {0.0: 0}  # code 0: never observed, probability 0.5
+        self._log_odds: list[float] = [0.0]
+
+    def __len__(self) -> int:
+        return len(self._log_odds)
+
+    def encode(self, log_odds: np.ndarray) -> np.ndarray:
+        """(n, n, n) float32 log-odds -> (n, n, n) uint16 codes (new values get new codes)."""
+        values, inverse = np.unique(log_odds, return_inverse=True)
+        lut = np.empty(len(values), dtype=np.uint16)
+        for i, value in enumerate(values.tolist()):
+            code = self._codes.get(value)
+            if code is None:
+                code = self._codes[value] = len(self._log_odds)
+                if code > np.iinfo(np.uint16).max:
+                    raise ValueError("more than 65,536 distinct grid values in one shard")
+                self._log_odds.append(value)
+            lut[i] = code
+        return lut[inverse].reshape(log_odds.shape)
+
+    def probabilities(self) -> np.ndarray:
+        """(K,) float32 probability of each code, as ``OccupancyGrid.probabilities``."""
+        return probability(np.array(self._log_odds, dtype=np.float32))
+
+
+def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
+    """Write a complete shard atomically: to ``path + .partial``, then rename over ``path``.
+
+    ``arrays`` holds every dataset of the schema; ``attrs`` every attribute but the version.
+    """
+    path = Path(path)
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays))
+    if missing:
+        raise ValueError(f"write_shard: missing arrays {missing}")
+    count = len(arrays["nbv_index"])
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    try:
+        with h5py.File(partial, "w", libver=("earliest", "v110")) as f:
+            f.attrs["schema_version"] = SCHEMA_VERSION
+            for key, value in attrs.items():
+                f.attrs[key] = value
+            for name in PER_SHARD:
+                f.create_dataset(name, data=arrays[name], track_times=False)
+            for name in PER_SAMPLE:
+                data = np.asarray(arrays[name])
+                if len(data) != count:
+                    raise ValueError(f"write_shard: {name} has {len(data)} rows, nbv_index has {count}")
+                chunks = (1,) + data.shape[1:] if count and data.ndim > 1 else None
+                f.create_dataset(name, data=data, chunks=chunks if count else None,
+                                 compression="gzip" if count else None,
+                                 compression_opts=4 if count else None, track_times=False)
+            f.flush()
+            os.fsync(f.id.get_vfd_handle())
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    os.replace(partial, path)
+
+
+@dataclass(frozen=True)
+class ShardInfo:
+    """What a shard's attributes say."""
+
+    path: Path
+    samples: int
+    config: dict
+    meshes: list[dict]
+    runs: tuple[int, int]
+    package_version: str
+
+
+class Shard:
+    """A shard opened for reading: ``len``, ``info``, ``grids(index)``, ``[name]`` for any dataset.
+
+    Use as a context manager, or call ``close``.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ShardError(f"{self.path}: no such shard")
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError:
+            raise ShardError(f"{self.path}: not a readable HDF5 file (truncated or corrupt?): "
+                             "delete it and run nbvdata generate again") from None
+        try:
+            self.info = self._check()
+        except Exception:
+            self.file.close()
+            raise
+
+    def _check(self) -> ShardInfo:
+        attrs = self.file.attrs
+        version = attrs.get("schema_version")
+        if version is None:
+            raise ShardError(f"{self.path}: not an nbvdata shard (no schema_version attribute)")
+        if int(version) != SCHEMA_VERSION:
+            raise ShardError(f"{self.path}: schema version {int(version)}, this nbvdata reads "
+                             f"{SCHEMA_VERSION}: regenerate the shard or install a matching nbvdata")
+        missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file]
+        if missing:
+            raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
+                             "delete it and run nbvdata generate again")
+        samples = int(attrs["samples"])
+        wrong = [name for name in PER_SAMPLE if len(self.file[name]) != samples]
+        if wrong:
+            raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {samples} samples: "
+                             "delete it and run nbvdata generate again")
+        return ShardInfo(self.path, samples, yaml.safe_load(attrs["config"]), json.loads(attrs["meshes"]),
+                         tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]))
+
+    def __len__(self) -> int:
+        return self.info.samples
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """The whole dataset ``name`` as an array (grids as palette codes; see ``grids``)."""
+        return self.file[name][()]
+
+    @property
+    def palette(self) -> np.ndarray:
+        return self.file["grid_palette"][()]
+
+    def grids(self, index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
+        """(..., n, n, n) float32 occupancy probabilities of the selected samples."""
+        return self.palette[self.file["grids"][index]]
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __enter__(self) -> "Shard":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
