@@ -19,6 +19,7 @@ from nbvdata import __version__
 from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.shards import ShardError
 
 
 class UsageError(Exception):
@@ -83,11 +84,73 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_generate(args: argparse.Namespace) -> int:
+    """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
+    from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources
+
+    flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
+             "generate.workers": args.workers, "generate.backend": args.backend,
+             "generate.scheduler": args.scheduler}
+    overrides = args.overrides + [f"{key}={value}" for key, value in flags.items() if value is not None]
+    config = load_config(SimConfig, args.config, overrides)
+    if args.meshes is None:
+        sources, failures = builtin_sources(config.mesh), []
+    else:
+        sources, failures = mesh_sources(args.meshes)
+    units = len(sources) * -(-config.episode.runs_per_mesh // (config.generate.runs_per_shard
+                                                               or config.episode.runs_per_mesh))
+    print(f"nbvdata generate: {len(sources)} meshes x {config.episode.runs_per_mesh} runs "
+          f"({units} shards) -> {args.out}")
+    try:
+        report = generate(sources, args.out, config, failures, show_progress=args.progress)
+    except KeyboardInterrupt:
+        print(f"nbvdata generate: interrupted; finished shards are kept, run the same command "
+              f"again to continue", file=sys.stderr)
+        return 130
+    rate = report.samples / report.seconds if report.seconds else 0.0
+    print(f"wrote {report.samples} samples in {len(report.done)} shards to {args.out} in "
+          f"{report.seconds:.1f} s ({rate:.1f} samples/s)"
+          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+    if report.failures:
+        print(f"nbvdata generate: {len(report.failures)} meshes failed, listed in "
+              f"{args.out / FAILURES_FILE}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    """Print samples per mesh, coverage statistics and the spread of labels over the views."""
+    from nbvdata.summary import format_summary, summarise
+
+    paths = _shard_paths(args.shards)
+    summary = summarise(paths)
+    print(format_summary(summary, top=args.top))
+    return 1 if summary.problems else 0
+
+
+def _shard_paths(items: list[Path]) -> list[Path]:
+    """Shard files from file and folder arguments (a folder contributes its *.h5)."""
+    paths = []
+    for item in items:
+        if item.is_dir():
+            found = sorted(item.glob("*.h5"))
+            if not found:
+                raise UsageError(f"{item}: no .h5 shards in this folder; run nbvdata generate --out {item}")
+            paths += found
+        elif item.exists():
+            paths.append(item)
+        else:
+            raise UsageError(f"{item}: no such shard or folder")
+    return paths
+
+
 def cmd_show(args: argparse.Namespace) -> int:
-    """Render a saved grid (.npy), or the grid after scanning an object from given views."""
+    """Render a shard sample, a saved grid (.npy), or the grid after scanning an object."""
     from nbvdata.render import render_state
     from nbvdata.views import view_sphere
 
+    if args.grid is not None and args.grid.suffix in (".h5", ".hdf5"):
+        return _show_sample(args)
     config = load_config(SimConfig, args.config, args.overrides)
     views = view_sphere(config.views)
     if args.grid is not None:
@@ -109,6 +172,34 @@ def cmd_show(args: argparse.Namespace) -> int:
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views))[0]
     out = render_state(probabilities, config.grid.extent, args.out, views, highlight=highlight, title=title)
+    print(f"wrote {out}")
+    return 0
+
+
+def _show_sample(args: argparse.Namespace) -> int:
+    """Render sample ``--index`` of a shard with its NBV (red) and the next best candidates."""
+    from nbvdata.render import render_state
+    from nbvdata.shards import Shard
+    from nbvdata.views import ViewSet, look_at_rotations
+
+    with Shard(args.grid) as shard:
+        if not 0 <= args.index < len(shard):
+            raise UsageError(f"--index {args.index}: {args.grid} holds {len(shard)} samples (0..{len(shard) - 1})")
+        i = args.index
+        probabilities = shard.grids(i)
+        positions = shard["view_positions"]
+        gains, overlaps = shard.file["gains"][i], shard.file["overlaps"][i]
+        nbv, run, step = int(shard.file["nbv_index"][i]), int(shard.file["run"][i]), int(shard.file["step"][i])
+        coverage = shard.file["coverage"][i]
+        config = shard.info.config
+        source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
+    valid = overlaps >= config["oracle"]["min_overlap"]
+    ranked = [int(v) for v in np.argsort(-np.where(valid, gains, -1.0), kind="stable") if v != nbv and valid[v]]
+    views = ViewSet(positions, look_at_rotations(positions))
+    title = (f"{source} run {run} step {step}: NBV {nbv} (+{100 * gains[nbv]:.1f}% surface, "
+             f"overlap {100 * overlaps[nbv]:.0f}%), coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%")
+    out = render_state(probabilities, config["grid"]["extent"], args.out, views, highlight=nbv,
+                       others=ranked[:args.top], title=title)
     print(f"wrote {out}")
     return 0
 
@@ -139,8 +230,31 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
     demo.set_defaults(func=cmd_demo)
 
-    show = sub.add_parser("show", help="render a grid with the candidate views to PNG")
-    show.add_argument("grid", type=Path, nargs="?", help="a .npy grid (n^3 values, authors' encoding)")
+    gen = sub.add_parser("generate", help="simulate labelled reconstructions of meshes into HDF5 shards")
+    gen.add_argument("--meshes", type=Path, help="folder of mesh files (searched recursively), one mesh "
+                     "file, or a .txt list of files; default: the built-in shapes")
+    gen.add_argument("--out", type=Path, default=Path("nbv_dataset"), help="output folder (default nbv_dataset)")
+    _add_config_options(gen)
+    gen.add_argument("--workers", type=int, help="parallel workers, 0 = one per core (generate.workers)")
+    gen.add_argument("--runs-per-mesh", type=int, help="runs per mesh (episode.runs_per_mesh)")
+    gen.add_argument("--seed", type=int, help="global seed (episode.seed)")
+    gen.add_argument("--backend", choices=["loky", "threading", "dask"],
+                     help="joblib backend (generate.backend)")
+    gen.add_argument("--scheduler", help="Dask scheduler address for --backend dask (generate.scheduler)")
+    gen.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                     help="show a progress bar (default: on a terminal)")
+    gen.set_defaults(func=cmd_generate)
+
+    inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
+    inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
+    inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
+    inspect.set_defaults(func=cmd_inspect)
+
+    show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
+    show.add_argument("grid", type=Path, nargs="?",
+                      help="a shard (.h5; pick the sample with --index) or a .npy grid (n^3 values, authors' encoding)")
+    show.add_argument("--index", type=int, default=0, help="sample of the shard to render (default 0)")
+    show.add_argument("--top", type=int, default=5, help="runner-up candidate views to draw (orange)")
     _add_object_options(show)
     _add_config_options(show)
     show.add_argument("--views", default="0", help="without a grid file: views to scan from, e.g. 0,120,340")
@@ -158,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return args.func(args)
-    except (ConfigError, MeshError, UsageError) as error:
+    except (ConfigError, MeshError, ShardError, UsageError) as error:
         print(f"nbvdata {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

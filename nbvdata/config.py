@@ -161,7 +161,7 @@ class GenerateConfig:
 
     workers: int = 0
     """Parallel workers (one thread each); 0 = one per CPU core."""
-    backend: Literal["loky", "multiprocessing", "threading", "dask"] = "loky"
+    backend: Literal["loky", "threading", "dask"] = "loky"
     """joblib backend; "dask" runs the units on the Dask cluster at ``scheduler``."""
     scheduler: str | None = None
     """Dask scheduler address (e.g. tcp://10.0.0.5:8786) for backend "dask"; none = a local cluster."""

@@ -14,6 +14,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from nbvdata.views import ViewSet  # noqa: E402
 
@@ -44,7 +45,9 @@ def render_state(
 
     fig = plt.figure(figsize=(7, 7), dpi=110)
     ax = fig.add_subplot(projection="3d")
-    ax.voxels(occupied | unknown, facecolors=colors, edgecolor=(0, 0, 0, 0.08), linewidth=0.2)
+    quads, face_colors = exposed_faces(occupied | unknown, colors)
+    ax.add_collection3d(Poly3DCollection(quads, facecolors=face_colors, edgecolors=(0, 0, 0, 0.08),
+                                         linewidths=0.2))
 
     scale = n / extent  # metres -> grid units; the grid's centre is at n / 2
     def to_grid(points: np.ndarray) -> np.ndarray:
@@ -73,3 +76,37 @@ def render_state(
     fig.savefig(out, bbox_inches="tight")
     plt.close(fig)
     return out
+
+
+# Unit square corners (u, v) of a voxel face, in drawing order.
+_SQUARE = np.array([(0, 0), (1, 0), (1, 1), (0, 1)])
+# Brightness of faces by (axis, side): a fixed light from above and in front, as a shading cue.
+_SHADE = {(0, 0): 0.70, (0, 1): 0.85, (1, 0): 0.80, (1, 1): 0.65, (2, 0): 0.55, (2, 1): 1.0}
+
+
+def exposed_faces(filled: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The voxel faces not hidden by a filled neighbour, as one batch of quads.
+
+    filled : (n, n, n) bool; colors : (n, n, n, 4) RGBA per voxel
+    Returns quads (F, 4, 3) in voxel units and their shaded colours (F, 4). The same faces as
+    ``Axes3D.voxels`` draws, but as one collection, which renders a 32^3 grid in about a second
+    instead of tens.
+    """
+    quads, face_colors = [], []
+    padded = np.pad(filled, 1)
+    n = filled.shape[0]
+    for axis in range(3):
+        u, v = [a for a in range(3) if a != axis]
+        for side in (0, 1):
+            neighbour = np.take(padded, np.arange(n) + 2 * side, axis=axis)[tuple(
+                slice(1, -1) if a != axis else slice(None) for a in range(3))]
+            cells = np.argwhere(filled & ~neighbour)  # (F, 3)
+            corners = np.repeat(cells[:, None, :], 4, axis=1).astype(np.float64)
+            corners[:, :, axis] += side
+            corners[:, :, u] += _SQUARE[:, 0]
+            corners[:, :, v] += _SQUARE[:, 1]
+            quads.append(corners)
+            shaded = colors[tuple(cells.T)].astype(np.float64)
+            shaded[:, :3] *= _SHADE[axis, side]
+            face_colors.append(shaded)
+    return np.concatenate(quads), np.concatenate(face_colors)

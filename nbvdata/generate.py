@@ -1,0 +1,385 @@
+"""The dataset job: labelled reconstructions of many meshes, in parallel, resumable, to shards.
+
+The work is split into units - one mesh and a range of its runs - each written to its own
+shard (``nbvdata.shards``). Every seed derives from the global seed, the mesh id and the run
+number (``nbvdata.episode``), never from the unit or the worker, so any number of workers on
+any joblib backend (Dask included) gives the same arrays. A unit whose shard exists is done:
+running the same command again after a kill continues with the missing units. A mesh that
+cannot be used is reported and listed in ``failures.tsv``; the others go on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import queue
+import sys
+import threading
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import yaml
+
+from nbvdata import __version__
+from nbvdata.config import ConfigError, MeshConfig, SimConfig
+from nbvdata.episode import ViewCache, run_reconstruction, run_seed, scene_rng, start_view
+from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
+from nbvdata.scene import Scene
+from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.shards import PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
+
+CONFIG_FILE = "config.yaml"
+FAILURES_FILE = "failures.tsv"
+
+
+@dataclass(frozen=True)
+class MeshSource:
+    """A mesh to generate from: a file, or a built-in shape (``path`` None)."""
+
+    name: str
+    mesh_id: str
+    path: Path | None = None
+
+    def load(self, config: MeshConfig) -> ObjectMesh:
+        if self.path is None:
+            return builtin_object(self.name.removeprefix("builtin:"), config)
+        return load_mesh(self.path, config)
+
+    @property
+    def stem(self) -> str:
+        return self.name.removeprefix("builtin:") if self.path is None else self.path.stem
+
+
+def builtin_sources(config: MeshConfig = MeshConfig()) -> list[MeshSource]:
+    """The built-in procedural shapes: the job's default when no meshes are given."""
+    return [MeshSource(f"builtin:{name}", builtin_object(name, config).mesh_id) for name in BUILTIN_SHAPES]
+
+
+def mesh_sources(where: Path) -> tuple[list[MeshSource], list[tuple[str, str]]]:
+    """Sources from a folder (searched recursively), one mesh file, or a .txt list of files
+    (one path per line, relative to the list; # starts a comment).
+
+    Returns (sources, failures): files that cannot even be read are failures (name, reason).
+    """
+    where = Path(where)
+    if where.is_file() and where.suffix.lower() == ".txt":
+        lines = [line.split("#", 1)[0].strip() for line in where.read_text().splitlines()]
+        files = [where.parent / line for line in lines if line]
+        if not files:
+            raise MeshError(f"{where}: the list names no mesh files")
+    elif where.is_file():
+        files = [where]
+    else:
+        files = find_meshes(where)
+    sources, failures = [], []
+    for path in files:
+        try:
+            sources.append(MeshSource(path.name, sha256_file(path), path))
+        except OSError as error:
+            failures.append((str(path), f"cannot read the file: {error.strerror or error}"))
+    return sources, failures
+
+
+@dataclass(frozen=True)
+class Unit:
+    """Runs [runs[0], runs[1]) of one mesh, written to one shard."""
+
+    source: MeshSource
+    runs: tuple[int, int]
+
+    @property
+    def shard_name(self) -> str:
+        return f"{self.source.stem}-{self.source.mesh_id[:12]}-runs{self.runs[0]:04d}-{self.runs[1]:04d}.h5"
+
+    @property
+    def run_count(self) -> int:
+        return self.runs[1] - self.runs[0]
+
+
+def plan_units(sources: list[MeshSource], config: SimConfig) -> list[Unit]:
+    """Every (mesh, run range) unit of the job, in a fixed order."""
+    runs = config.episode.runs_per_mesh
+    step = config.generate.runs_per_shard or runs
+    return [Unit(source, (start, min(start + step, runs))) for source in sources for start in range(0, runs, step)]
+
+
+@dataclass
+class UnitResult:
+    """What a worker reports back for one unit."""
+
+    unit: Unit
+    samples: int = 0
+    error: str | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+class Timer:
+    """Seconds spent per phase: ``with timer("scan"): ...``."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+
+    @contextlib.contextmanager
+    def __call__(self, phase: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[phase] += time.perf_counter() - start
+
+
+def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None = None,
+             threads: int = 0) -> UnitResult:
+    """Simulate and label the unit's runs and write its shard. Never raises for a bad mesh:
+    the reason comes back in ``UnitResult.error``. ``progress(runs, samples)`` is called per run.
+    ``threads`` > 0 limits numba and open3d to that many threads (parallel workers pass 1)."""
+    result = UnitResult(unit)
+    timer = Timer()
+    if threads:
+        import numba
+        numba.set_num_threads(threads)
+    try:
+        with timer("load"):
+            obj = unit.source.load(config.mesh)
+        seed, mesh_id = config.episode.seed, unit.source.mesh_id
+        with timer("scene"):
+            scene = Scene.build(obj, config, scene_rng(seed, mesh_id), threads)
+        cache = ViewCache(scene) if config.sensor.noise_std == 0 else None
+        columns: dict[str, list] = defaultdict(list)
+        palette = GridPalette()
+        for run in range(*unit.runs):
+            rng_seed = run_seed(seed, mesh_id, run)
+            with timer("runs"):
+                record = run_reconstruction(scene, start_view(seed, mesh_id, len(scene.views), run),
+                                            np.random.default_rng(rng_seed), cache)
+            with timer("encode"):
+                columns["grids"].extend(palette.encode(log_odds) for log_odds in record.log_odds)
+            for name in ("nbv_index", "gains", "overlaps", "coverage", "last_view"):
+                columns[name].extend(getattr(record, name))
+            columns["run"].extend([run] * len(record))
+            columns["step"].extend(range(1, len(record) + 1))
+            columns["seed"].extend([rng_seed] * len(record))
+            if progress is not None:
+                progress(1, len(record))
+        with timer("write"):
+            arrays = _assemble(columns, scene, palette, mesh_id)
+            attrs = {
+                "package_version": __version__,
+                "config": yaml.safe_dump(config.dataset_dict(), sort_keys=False),
+                "meshes": json.dumps([{"id": mesh_id, "source": obj.source, "sha256": mesh_id}]),
+                "samples": len(arrays["nbv_index"]),
+                "runs": np.array(unit.runs, dtype=np.int64),
+            }
+            write_shard(Path(out_dir) / unit.shard_name, arrays, attrs)
+        result.samples = len(arrays["nbv_index"])
+    except MeshError as error:
+        result.error = str(error)
+    except Exception as error:  # a mesh that breaks the simulation must not stop the others
+        logging.getLogger(__name__).debug("unit %s failed", unit.shard_name, exc_info=True)
+        result.error = f"{type(error).__name__}: {error}"
+    result.seconds = dict(timer.seconds)
+    return result
+
+
+def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh_id: str) -> dict[str, np.ndarray]:
+    """The unit's lists of per-state values as the shard's arrays."""
+    n, views = scene.config.grid.size, len(scene.views)
+    count = len(columns["nbv_index"])
+    code_type = np.uint8 if len(palette) <= 256 else np.uint16
+    nbv = np.asarray(columns["nbv_index"], dtype=np.int32)
+    xyzypr = scene.views.xyzypr()
+    return {
+        "grids": np.asarray(columns["grids"], dtype=code_type).reshape(count, n, n, n),
+        "grid_palette": palette.probabilities(),
+        "nbv_index": nbv,
+        "nbv_pose": xyzypr[nbv].reshape(count, 6),
+        "nbv_position": scene.views.unit_positions[nbv].astype(np.float32).reshape(count, 3),
+        "gains": np.asarray(columns["gains"], dtype=np.float32).reshape(count, views),
+        "overlaps": np.asarray(columns["overlaps"], dtype=np.float32).reshape(count, views),
+        "coverage": np.asarray(columns["coverage"], dtype=np.float32).reshape(count, 2),
+        "mesh_id": np.full(count, mesh_id.encode(), dtype="S64"),
+        "run": np.asarray(columns["run"], dtype=np.int32),
+        "step": np.asarray(columns["step"], dtype=np.int32),
+        "last_view": np.asarray(columns["last_view"], dtype=np.int32),
+        "seed": np.asarray(columns["seed"], dtype=np.int64),
+        "view_positions": scene.views.positions,
+        "view_poses": xyzypr,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# The job
+
+
+@dataclass
+class Report:
+    """The outcome of one ``generate`` call."""
+
+    out_dir: Path
+    done: list[UnitResult] = field(default_factory=list)
+    skipped: list[Unit] = field(default_factory=list)
+    failures: list[tuple[str, str]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def samples(self) -> int:
+        return sum(r.samples for r in self.done)
+
+
+def prepare_out_dir(out_dir: Path, config: SimConfig) -> None:
+    """Create ``out_dir``, or check that the dataset there was made with the same data settings."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    settings = out_dir / CONFIG_FILE
+    wanted = config.dataset_dict()
+    if settings.exists():
+        existing = yaml.safe_load(settings.read_text()) or {}
+        if existing != wanted:
+            differ = sorted(f"{section}.{key}" for section in wanted for key in wanted[section]
+                            if existing.get(section, {}).get(key) != wanted[section][key])
+            raise ConfigError(f"{out_dir} holds shards made with other settings ({', '.join(differ)}): "
+                              "use a new --out folder, or the settings in "
+                              f"{settings} to resume")
+    else:
+        settings.write_text(yaml.safe_dump(wanted, sort_keys=False))
+    for stale in out_dir.glob(f"*{PARTIAL_SUFFIX}"):
+        stale.unlink()  # left by a killed run
+
+
+def _completed(path: Path) -> bool:
+    """True for a readable shard; a broken one is deleted so that its unit runs again."""
+    if not path.exists():
+        return False
+    try:
+        Shard(path).close()
+        return True
+    except ShardError as error:
+        print(f"nbvdata generate: redoing {path.name}: {error}")
+        path.unlink()
+        return False
+
+
+def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
+             failures: list[tuple[str, str]] = (), show_progress: bool | None = None) -> Report:
+    """Run every unit not yet in ``out_dir``; returns what was done, skipped and failed.
+
+    ``show_progress`` None shows the bar only on a terminal.
+    """
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    out_dir = Path(out_dir)
+    prepare_out_dir(out_dir, config)
+    report = Report(out_dir, failures=list(failures))
+    for name, reason in failures:
+        print(f"nbvdata generate: failed: {name}: {reason}", file=sys.stderr)
+    todo = []
+    for unit in plan_units(sources, config):
+        (report.skipped if _completed(out_dir / unit.shard_name) else todo).append(unit)
+    workers = config.generate.workers or os.cpu_count() or 1
+    bar = tqdm(total=sum(u.run_count for u in todo), unit="run", desc="generate", disable=None if show_progress is None
+               else not show_progress, dynamic_ncols=True)
+    counts = {"samples": 0}
+
+    def advance(runs: int, samples: int) -> None:
+        counts["samples"] += samples
+        bar.update(runs)
+        elapsed = max(bar.format_dict["elapsed"], 1e-9)
+        bar.set_postfix(samples=counts["samples"], per_s=f"{counts['samples'] / elapsed:.1f}", refresh=False)
+
+    def finished(result: UnitResult, ticked: bool) -> None:
+        """A unit came back; ``ticked``: its runs were already counted, one by one."""
+        if not ticked:
+            advance(result.unit.run_count, result.samples)
+        if result.error is None:
+            report.done.append(result)
+        else:
+            report.failures.append((str(result.unit.source.path or result.unit.source.name), result.error))
+            bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {result.error}", file=sys.stderr)
+
+    try:
+        if workers == 1 and config.generate.backend != "dask":
+            for unit in todo:
+                finished(run_unit(unit, config, out_dir, advance), ticked=True)
+        else:
+            _run_parallel(todo, config, out_dir, workers, advance, finished)
+    finally:
+        bar.close()
+        _write_failures(out_dir, report.failures)
+        report.seconds = time.perf_counter() - start
+    return report
+
+
+def _run_parallel(todo: list[Unit], config: SimConfig, out_dir: Path, workers: int,
+                  advance: Callable[[int, int], None], finished: Callable[[UnitResult, bool], None]) -> None:
+    """Units on a joblib backend, one thread per worker; per-run progress through a queue."""
+    import joblib
+
+    backend = config.generate.backend
+    with contextlib.ExitStack() as stack:
+        ticks = None
+        if backend == "dask":
+            stack.enter_context(_dask_client(config.generate.scheduler, workers))
+        elif backend == "threading":
+            ticks = queue.Queue()
+        else:
+            import multiprocessing
+            ticks = stack.enter_context(multiprocessing.Manager()).Queue()
+        drain = None
+        if ticks is not None:
+            drain = threading.Thread(target=_drain, args=(ticks, advance), daemon=True)
+            drain.start()
+        stack.enter_context(joblib.parallel_config(backend=backend, n_jobs=workers))
+        progress = _QueueProgress(ticks) if ticks is not None else None
+        calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1) for unit in todo)
+        try:
+            for result in joblib.Parallel(return_as="generator_unordered")(calls):
+                finished(result, ticked=ticks is not None)
+        finally:
+            if drain is not None:
+                ticks.put(None)
+                drain.join()
+
+
+class _QueueProgress:
+    """A worker's progress callback: sends (runs, samples) to the main process."""
+
+    def __init__(self, ticks):
+        self.ticks = ticks
+
+    def __call__(self, runs: int, samples: int) -> None:
+        self.ticks.put((runs, samples))
+
+
+def _drain(ticks, advance: Callable[[int, int], None]) -> None:
+    while (tick := ticks.get()) is not None:
+        advance(*tick)
+
+
+@contextlib.contextmanager
+def _dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
+    """A client of the cluster at ``scheduler``, or of a local cluster of ``workers`` processes."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError:
+        raise ConfigError("generate.backend dask needs dask.distributed: pip install 'nbv-regression[dask]'") from None
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+    else:
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster, Client(cluster) as client:
+            yield client
+
+
+def _write_failures(out_dir: Path, failures: list[tuple[str, str]]) -> None:
+    path = out_dir / FAILURES_FILE
+    if failures:
+        path.write_text("mesh\treason\n" + "".join(f"{name}\t{reason}\n" for name, reason in failures))
+    elif path.exists():
+        path.unlink()

@@ -1,0 +1,108 @@
+"""What a set of shards holds: samples per mesh, coverage statistics, how labels spread over
+the views. Backs ``nbvdata inspect``; reads everything but the grids."""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nbvdata.shards import Shard, ShardError
+
+
+@dataclass
+class MeshSummary:
+    source: str
+    shards: int = 0
+    runs: int = 0
+    samples: int = 0
+    first_coverage: list[float] = field(default_factory=list)
+    final_coverage: list[float] = field(default_factory=list)
+    steps: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Summary:
+    """Statistics over shards; ``problems`` lists shards that could not be read."""
+
+    shards: int = 0
+    samples: int = 0
+    view_count: int = 0
+    meshes: dict[str, MeshSummary] = field(default_factory=dict)
+    nbv_counts: Counter = field(default_factory=Counter)
+    best_gain: list[np.ndarray] = field(default_factory=list)
+    valid_share: list[np.ndarray] = field(default_factory=list)
+    configs: set[str] = field(default_factory=set)
+    problems: list[str] = field(default_factory=list)
+
+
+def summarise(paths: list[Path]) -> Summary:
+    """Read the per-sample labels of every shard in ``paths`` (unreadable ones go to problems)."""
+    summary = Summary()
+    for path in paths:
+        try:
+            shard = Shard(path)
+        except ShardError as error:
+            summary.problems.append(str(error))
+            continue
+        with shard:
+            info = shard.info
+            summary.shards += 1
+            summary.samples += len(shard)
+            summary.configs.add(str(shard.file.attrs["config"]))
+            summary.view_count = max(summary.view_count, len(shard.file["view_positions"]))
+            min_overlap = info.config.get("oracle", {}).get("min_overlap", 0.0)
+            for mesh in info.meshes:
+                summary.meshes.setdefault(mesh["id"], MeshSummary(mesh["source"])).shards += 1
+            if not len(shard):
+                continue
+            mesh_ids, runs, steps = shard["mesh_id"], shard["run"], shard["step"]
+            coverage, nbv = shard["coverage"], shard["nbv_index"]
+            gains, overlaps = shard["gains"], shard["overlaps"]
+            summary.nbv_counts.update(nbv.tolist())
+            summary.best_gain.append(gains[np.arange(len(nbv)), nbv])
+            summary.valid_share.append((overlaps >= min_overlap).mean(axis=1))
+            runs_of = defaultdict(list)
+            for i, (mesh_id, run) in enumerate(zip(mesh_ids.astype(str), runs)):
+                runs_of[(mesh_id, int(run))].append(i)
+            for (mesh_id, _), rows in runs_of.items():
+                entry = summary.meshes.setdefault(mesh_id, MeshSummary(mesh_id[:12]))
+                rows = sorted(rows, key=lambda r: steps[r])
+                entry.runs += 1
+                entry.samples += len(rows)
+                entry.steps.append(int(steps[rows[-1]]))
+                entry.first_coverage.append(float(coverage[rows[0], 0]))
+                entry.final_coverage.append(float(coverage[rows[-1], 1]))
+    return summary
+
+
+def format_summary(summary: Summary, top: int = 10) -> str:
+    """The summary as the text ``nbvdata inspect`` prints."""
+    lines = [f"{summary.shards} shards, {summary.samples} samples, {len(summary.meshes)} meshes, "
+             f"{summary.view_count} candidate views"]
+    if len(summary.configs) > 1:
+        lines.append(f"warning: the shards were made with {len(summary.configs)} different settings")
+    lines.append("")
+    lines.append(f"{'mesh':44s} {'shards':>6s} {'runs':>5s} {'samples':>7s} {'scans/run':>9s} "
+                 f"{'cov@1':>6s} {'final':>6s}  (observable coverage, mean over runs)")
+    for entry in sorted(summary.meshes.values(), key=lambda e: e.source):
+        mean = lambda values: f"{100 * np.mean(values):5.1f}%" if values else "    - "  # noqa: E731
+        steps = f"{np.mean(entry.steps):9.1f}" if entry.steps else f"{'-':>9s}"
+        lines.append(f"{entry.source[:44]:44s} {entry.shards:6d} {entry.runs:5d} {entry.samples:7d} {steps} "
+                     f"{mean(entry.first_coverage)} {mean(entry.final_coverage)}")
+    if summary.samples:
+        counts = np.array(list(summary.nbv_counts.values()), dtype=np.float64)
+        share = counts / counts.sum()
+        entropy = float(-(share * np.log(share)).sum())
+        lines += ["", f"labels: {len(summary.nbv_counts)} of {summary.view_count} views are ever the NBV; "
+                  f"label entropy {entropy:.2f} nats (uniform over the used views: {np.log(len(counts)):.2f})",
+                  f"gain of the NBV: median {100 * np.median(np.concatenate(summary.best_gain)):.2f}% of the "
+                  f"observable surface; valid views per state: median "
+                  f"{100 * np.median(np.concatenate(summary.valid_share)):.0f}%",
+                  f"most frequent NBVs (view: samples): " + ", ".join(
+                      f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
+    for problem in summary.problems:
+        lines.append(f"unreadable: {problem}")
+    return "\n".join(lines)
