@@ -32,7 +32,7 @@ from nbvdata.episode import ViewCache, run_reconstruction, run_seed, scene_rng, 
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
+from nbvdata.shards import GENERATED, PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
 
 CONFIG_FILE = "config.yaml"
 FAILURES_FILE = "failures.tsv"
@@ -175,6 +175,7 @@ def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[i
                 "meshes": json.dumps([{"id": mesh_id, "source": obj.source, "sha256": mesh_id}]),
                 "samples": len(arrays["nbv_index"]),
                 "runs": np.array(unit.runs, dtype=np.int64),
+                "source": GENERATED,
             }
             write_shard(Path(out_dir) / unit.shard_name, arrays, attrs)
         result.samples = len(arrays["nbv_index"])

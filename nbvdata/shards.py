@@ -26,9 +26,16 @@ Datasets::
     view_positions (V, 3) float64        candidate view positions, metres
     view_poses     (V, 6) float64        candidate view poses (x, y, z, yaw, pitch, roll)
 
+Optional datasets (``OPTIONAL``): ``gains``, ``overlaps``, ``coverage``, ``mesh_id``,
+``last_view``, ``seed`` and ``view_poses`` may be absent: a shard imported from a dataset that
+did not publish them (``nbvdata import-legacy``) leaves them out rather than inventing values.
+``nbvdata generate`` always writes all of them (a generated shard without one is incomplete).
+``Shard.has(name)`` tells.
+
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
 determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
-``runs`` ([first, stop) run numbers of the unit).
+``runs`` ([first, stop) run numbers of the unit), ``source`` ("nbvdata generate", or what was
+imported; absent in the first shards written, which mean "nbvdata generate").
 
 A shard is written under a temporary name and renamed when complete: it is whole or absent.
 """
@@ -64,6 +71,8 @@ PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
     "seed": (np.int64, lambda v, n: ()),
 }
 PER_SHARD = ("grid_palette", "view_positions", "view_poses")
+GENERATED = "nbvdata generate"  # the ``source`` attribute of generated shards: nothing optional
+OPTIONAL = frozenset({"gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"})
 
 
 class ShardError(ValueError):
@@ -71,17 +80,24 @@ class ShardError(ValueError):
 
 
 class GridPalette:
-    """The distinct log-odds values of a shard's grids, coded in order of first appearance."""
+    """The distinct values of a shard's grids, coded in order of first appearance.
 
-    def __init__(self):
-        self._codes: dict[float, int] = {0.0: 0}  # code 0: never observed, probability 0.5
-        self._log_odds: list[float] = [0.0]
+    By default the values are float32 log-odds (code 0 = 0.0, never observed); with
+    ``log_odds=False`` they are probabilities already (code 0 = 0.5, unknown), as in the
+    authors' files.
+    """
+
+    def __init__(self, log_odds: bool = True):
+        self._is_log_odds = log_odds
+        unknown = 0.0 if log_odds else 0.5
+        self._codes: dict[float, int] = {unknown: 0}  # code 0: never observed, probability 0.5
+        self._log_odds: list[float] = [unknown]
 
     def __len__(self) -> int:
         return len(self._log_odds)
 
     def encode(self, log_odds: np.ndarray) -> np.ndarray:
-        """(n, n, n) float32 log-odds -> (n, n, n) uint16 codes (new values get new codes)."""
+        """(...) grid values -> (...) uint16 codes (new values get new codes)."""
         values, inverse = np.unique(log_odds, return_inverse=True)
         lut = np.empty(len(values), dtype=np.uint16)
         for i, value in enumerate(values.tolist()):
@@ -96,16 +112,19 @@ class GridPalette:
 
     def probabilities(self) -> np.ndarray:
         """(K,) float32 probability of each code, as ``OccupancyGrid.probabilities``."""
+        if not self._is_log_odds:
+            return np.array(self._log_odds, dtype=np.float32)
         return probability(np.array(self._log_odds, dtype=np.float32))
 
 
 def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
     """Write a complete shard atomically: to ``path + .partial``, then rename over ``path``.
 
-    ``arrays`` holds every dataset of the schema; ``attrs`` every attribute but the version.
+    ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` ones may be left out);
+    ``attrs`` every attribute but the version.
     """
     path = Path(path)
-    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays))
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL)
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
@@ -116,8 +135,11 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
             for key, value in attrs.items():
                 f.attrs[key] = value
             for name in PER_SHARD:
-                f.create_dataset(name, data=arrays[name], track_times=False)
+                if name in arrays:
+                    f.create_dataset(name, data=arrays[name], track_times=False)
             for name in PER_SAMPLE:
+                if name not in arrays:
+                    continue
                 data = np.asarray(arrays[name])
                 if len(data) != count:
                     raise ValueError(f"write_shard: {name} has {len(data)} rows, nbv_index has {count}")
@@ -143,6 +165,7 @@ class ShardInfo:
     meshes: list[dict]
     runs: tuple[int, int]
     package_version: str
+    source: str
 
 
 class Shard:
@@ -174,20 +197,27 @@ class Shard:
         if int(version) != SCHEMA_VERSION:
             raise ShardError(f"{self.path}: schema version {int(version)}, this nbvdata reads "
                              f"{SCHEMA_VERSION}: regenerate the shard or install a matching nbvdata")
-        missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file]
+        source = str(attrs.get("source", GENERATED))
+        optional = OPTIONAL if source != GENERATED else frozenset()
+        missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file and name not in optional]
         if missing:
             raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
                              "delete it and run nbvdata generate again")
         samples = int(attrs["samples"])
-        wrong = [name for name in PER_SAMPLE if len(self.file[name]) != samples]
+        wrong = [name for name in PER_SAMPLE if name in self.file and len(self.file[name]) != samples]
         if wrong:
             raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {samples} samples: "
                              "delete it and run nbvdata generate again")
         return ShardInfo(self.path, samples, yaml.safe_load(attrs["config"]), json.loads(attrs["meshes"]),
-                         tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]))
+                         tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]),
+                         source)
 
     def __len__(self) -> int:
         return self.info.samples
+
+    def has(self, name: str) -> bool:
+        """Whether the shard holds dataset ``name`` (the ``OPTIONAL`` ones may be absent)."""
+        return name in self.file
 
     def __getitem__(self, name: str) -> np.ndarray:
         """The whole dataset ``name`` as an array (grids as palette codes; see ``grids``)."""

@@ -109,3 +109,25 @@ def test_write_refuses_inconsistent_arrays(tmp_path, rng):
     with pytest.raises(ValueError, match="run has 2 rows"):
         write_shard(tmp_path / "a.h5", arrays, dict(ATTRS, samples=3))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_optional_datasets_may_be_absent_but_required_ones_may_not(tmp_path, rng):
+    arrays = _arrays(rng, 3)
+    for name in ("gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"):
+        del arrays[name]
+    write_shard(tmp_path / "a.h5", arrays, dict(ATTRS, samples=3, source="test import"))
+    with Shard(tmp_path / "a.h5") as shard:
+        assert shard.info.source == "test import"
+        assert not shard.has("gains") and shard.has("nbv_position")
+        assert np.array_equal(shard["nbv_index"], arrays["nbv_index"])
+    del arrays["nbv_position"]
+    with pytest.raises(ValueError, match="nbv_position"):
+        write_shard(tmp_path / "b.h5", arrays, dict(ATTRS, samples=3))
+    assert not (tmp_path / "b.h5").exists()
+
+
+def test_probability_palette_keeps_unknown_at_code_zero():
+    palette = GridPalette(log_odds=False)
+    codes = palette.encode(np.array([[0.7, 0.5], [0.4, 0.7]]))
+    assert codes[0, 1] == 0 and codes[0, 0] == codes[1, 1] != codes[1, 0]
+    assert np.array_equal(palette.probabilities()[codes], np.array([[0.7, 0.5], [0.4, 0.7]], dtype=np.float32))
