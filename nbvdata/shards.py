@@ -239,3 +239,19 @@ class Shard:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def shard_files(items: list[Path]) -> list[Path]:
+    """Shard files from file and folder arguments (a folder contributes its *.h5, sorted)."""
+    paths = []
+    for item in map(Path, items):
+        if item.is_dir():
+            found = sorted(item.glob("*.h5"))
+            if not found:
+                raise ShardError(f"{item}: no .h5 shards in this folder; run nbvdata generate --out {item}")
+            paths += found
+        elif item.exists():
+            paths.append(item)
+        else:
+            raise ShardError(f"{item}: no such shard or folder")
+    return paths

@@ -1,28 +1,158 @@
-"""The ``nbvtrain`` command line: training, prediction and evaluation of NBV networks.
+"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, baselines.
 
-Its commands (fit, predict, evaluate) build on the shard schema of ``nbvdata generate`` and
-are not written yet; until then the command only reports its version.
+Expected user errors (a bad setting, a missing or broken shard or checkpoint) print one line
+naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
+exits with 130.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
+from pathlib import Path
 
+import numpy as np
+
+from nbvdata.config import ConfigError, from_dict, load_config, to_dict
+from nbvdata.shards import Shard, ShardError, shard_files
 from nbvtrain import __version__
+from nbvtrain.config import TrainConfig
+from nbvtrain.models import MODELS
+
+FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
+             "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
+             "augment": "augment", "seed": "seed", "device": "device", "threads": "threads"}
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """Train a network; with --resume continue the run in --out."""
+    from nbvtrain.train import Interrupted, fit, load_run_config
+
+    flags = {key: getattr(args, attr) for attr, key in FIT_FLAGS.items() if getattr(args, attr) is not None}
+    out = args.out or Path("runs") / (flags.get("model") or TrainConfig.model)
+    if args.resume:
+        config = from_dict(TrainConfig, to_dict(load_run_config(out)) | flags)
+    else:
+        if not args.shards:
+            raise ConfigError("no shards given: nbvtrain fit SHARDS_OR_FOLDERS... (or --resume --out RUN)")
+        config = load_config(TrainConfig, args.config, args.overrides + [f"{k}={v}" for k, v in flags.items()])
+    shards = shard_files(args.shards) if args.shards else []
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    started = time.perf_counter()
+    try:
+        result = fit(shards, config, out, resume=args.resume, progress=progress)
+    except Interrupted as stop:
+        print(f"nbvtrain fit: {stop}; continue with: nbvtrain fit --resume --out {out}", file=sys.stderr)
+        return 130
+    print(f"nbvtrain fit: {result.epochs} epochs in {out} ({time.perf_counter() - started:.1f} s); "
+          f"best checkpoint {out / 'best.pt'}")
+    return 0
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
+    from nbvtrain.predict import Predictor, prediction_json
+
+    predictor = Predictor(args.checkpoint, device=args.device, k=args.k, radius=args.radius)
+    if args.grid.suffix == ".npy":
+        try:
+            grid = np.load(args.grid)
+        except (OSError, ValueError) as error:
+            raise ShardError(f"{args.grid}: not a readable .npy grid ({error})") from None
+        if grid.size != 32 ** 3:
+            raise ShardError(f"{args.grid}: holds {grid.size} values, a grid has 32^3 = 32768")
+        grid, source = grid.reshape(32, 32, 32), str(args.grid)
+    else:
+        with Shard(args.grid) as shard:
+            if not 0 <= args.index < len(shard):
+                raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
+            grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
+    (prediction,) = predictor.predict(grid)
+    print(prediction_json(prediction, predictor, source))
+    return 0
+
+
+def cmd_baselines(args: argparse.Namespace) -> int:
+    """Score the mean-direction and nearest-neighbour predictors on a split, as fit would make it."""
+    from nbvtrain.baselines import BASELINES
+    from nbvtrain.data import load_shards, split_indices
+
+    data = load_shards(shard_files(args.shards), args.memory_limit_gb)
+    try:
+        train_idx, val_idx, split = split_indices(data, args.split, args.val_fraction, args.seed)
+        print(f"{len(train_idx)} training and {len(val_idx)} validation samples ({split['kind']} split, "
+              f"seed {args.seed})")
+        print(f"{'predictor':20s} {'val MSE':>8s} {'val MAE':>8s} {'angle':>8s} {'gain ratio':>10s} {'seconds':>8s}")
+        for name, baseline in BASELINES.items():
+            started = time.perf_counter()
+            scores = baseline(data, train_idx, val_idx)
+            print(f"{name:20s} {scores['mse']:8.4f} {scores['mae']:8.4f} {scores['angle_deg']:7.1f}d "
+                  f"{scores['gain_ratio']:10.3f} {time.perf_counter() - started:8.1f}")
+    finally:
+        data.close()
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="nbvtrain", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    fit = sub.add_parser("fit", help="train a network on shards (files or folders)")
+    fit.add_argument("shards", type=Path, nargs="*", help="shard files or folders of shards")
+    fit.add_argument("--config", type=Path, help="YAML file of training settings (see configs/train.yaml)")
+    fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override one setting, e.g. --set dropout=0.3 (repeatable)")
+    fit.add_argument("--model", choices=list(MODELS), help="network (default nbvnet-4-5)")
+    fit.add_argument("--epochs", type=int, help="total epochs (default 600)")
+    fit.add_argument("--batch-size", type=int, help="samples per step (default 250)")
+    fit.add_argument("--lr", type=float, help="Adam learning rate (default 1e-4)")
+    fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
+                     "(default conv3)")
+    fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out")
+    fit.add_argument("--val-fraction", type=float, help="share held out for validation (default 0.2)")
+    fit.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
+                     help="rotate grids and targets by random quarter turns about z")
+    fit.add_argument("--seed", type=int, help="seed of split, weights, batches, dropout (default 0)")
+    fit.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default auto")
+    fit.add_argument("--threads", type=int, help="torch CPU threads (default: one per core)")
+    fit.add_argument("--out", type=Path, help="run folder (default runs/MODEL)")
+    fit.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    fit.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                     help="show a progress bar (default: on a terminal)")
+    fit.set_defaults(func=cmd_fit)
+
+    predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
+    predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
+    predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
+    predict.add_argument("--checkpoint", type=Path, required=True, help="a checkpoint of nbvtrain fit (best.pt)")
+    predict.add_argument("--k", type=float, default=1.0, help="scale of the position beyond the view sphere "
+                         "(paper: 2.5 for its 1 m robot scene)")
+    predict.add_argument("--radius", type=float, help="view sphere radius, metres (default: the training data's)")
+    predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    predict.set_defaults(func=cmd_predict)
+
+    baselines = sub.add_parser("baselines", help="mean-direction and nearest-neighbour scores on a split")
+    baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
+    baselines.add_argument("--split", choices=["random", "mesh"], default="random")
+    baselines.add_argument("--val-fraction", type=float, default=0.2)
+    baselines.add_argument("--seed", type=int, default=0)
+    baselines.add_argument("--memory-limit-gb", type=float, default=8.0)
+    baselines.set_defaults(func=cmd_baselines)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    build_parser().parse_args(argv)
-    print("nbvtrain: no commands yet (fit, predict and evaluate need the nbvdata shard schema first)",
-          file=sys.stderr)
-    return 2
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ConfigError, ShardError) as error:
+        print(f"nbvtrain {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"nbvtrain {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

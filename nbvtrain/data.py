@@ -1,0 +1,192 @@
+"""Training data from nbvdata shards: labels in memory, grids in memory or read lazily.
+
+Reads shards only through ``nbvdata.shards``. All shards' grid palettes are merged into one
+(``ShardSet.palette``), so a batch of grids is one array of codes (B, n, n, n) that becomes
+float32 probabilities by one table lookup, on the training device.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nbvdata.shards import Shard, ShardError
+
+
+class InMemoryGrids:
+    """(N, n, n, n) codes held in one array."""
+
+    def __init__(self, codes: np.ndarray):
+        self.codes = codes
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        """(B,) sample indices -> (B, n, n, n) codes."""
+        return self.codes[indices]
+
+    def close(self) -> None:
+        pass
+
+
+class LazyGrids:
+    """Codes read from the shards at each request (for datasets larger than memory)."""
+
+    def __init__(self, paths: list[Path], offsets: np.ndarray, luts: list[np.ndarray], dtype: np.dtype):
+        self.shards = [Shard(path) for path in paths]
+        self.offsets, self.luts, self.dtype = offsets, luts, dtype
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        indices = np.asarray(indices)
+        n = self.shards[0].file["grids"].shape[1]
+        out = np.empty((len(indices), n, n, n), dtype=self.dtype)
+        which = np.searchsorted(self.offsets, indices, side="right") - 1
+        for s in np.unique(which):
+            mine = np.flatnonzero(which == s)
+            rows = indices[mine] - self.offsets[s]
+            order = np.argsort(rows)
+            unique_rows, inverse = np.unique(rows[order], return_inverse=True)
+            block = self.shards[s].file["grids"][unique_rows]  # h5py wants increasing rows
+            out[mine[order]] = self.luts[s][block[inverse]]
+        return out
+
+    def close(self) -> None:
+        for shard in self.shards:
+            shard.close()
+
+
+@dataclass
+class ShardSet:
+    """Every sample of some shards, in the order given (N samples, V candidate views).
+
+    targets      : (N, 3) float32 unit NBV positions (the regression target)
+    palette      : (K,) float32 probability of each grid code
+    mesh_ids     : (N,) str, or None when a shard has no mesh ids (imported data)
+    gains        : (N, V) float32 gain of every candidate view, or None when not every shard
+                   has them for one common view set
+    view_units   : (V, 3) float64 unit candidate positions (None with gains)
+    view_radius  : metres from the object centre to the views
+    """
+
+    paths: list[Path]
+    grids: InMemoryGrids | LazyGrids
+    palette: np.ndarray
+    targets: np.ndarray
+    mesh_ids: np.ndarray | None
+    gains: np.ndarray | None
+    view_units: np.ndarray | None
+    view_radius: float
+    grid_size: int
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def close(self) -> None:
+        self.grids.close()
+
+
+def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
+    """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard."""
+    if not paths:
+        raise ShardError("no shards given: pass .h5 files or folders written by nbvdata generate")
+    infos = []
+    for path in paths:
+        with Shard(path) as shard:
+            f = shard.file
+            infos.append({
+                "samples": len(shard), "palette": shard.palette, "size": f["grids"].shape[1:],
+                "dtype": f["grids"].dtype, "targets": shard["nbv_position"].astype(np.float32),
+                "mesh_id": shard["mesh_id"].astype(str) if shard.has("mesh_id") else None,
+                "gains": shard["gains"] if shard.has("gains") else None,
+                "views": shard["view_positions"],
+            })
+    sizes = {info["size"] for info in infos if info["samples"]}
+    if len(sizes) > 1:
+        raise ShardError(f"the shards hold grids of different sizes {sorted(sizes)}: train on one kind at a time")
+    size = (sizes or {(32, 32, 32)}).pop()[0]
+    palette = np.unique(np.concatenate([info["palette"] for info in infos]).astype(np.float32))
+    luts = [np.searchsorted(palette, info["palette"]) for info in infos]
+    code_type = np.uint8 if len(palette) <= 256 else np.uint16
+    luts = [lut.astype(code_type) for lut in luts]
+    counts = np.array([info["samples"] for info in infos])
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    total = int(counts.sum())
+    if total == 0:
+        raise ShardError(f"the {len(paths)} shards hold no samples: generate more runs or other meshes")
+
+    nbytes = total * size ** 3 * np.dtype(code_type).itemsize
+    if nbytes <= memory_limit_gb * 2 ** 30:
+        codes = np.empty((total, size, size, size), dtype=code_type)
+        for path, lut, start, count in zip(paths, luts, offsets, counts):
+            if count:
+                with Shard(path) as shard:
+                    codes[start:start + count] = lut[shard.file["grids"][()]]
+        grids: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
+    else:
+        grids = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
+
+    views = infos[0]["views"]
+    radius = float(np.linalg.norm(views, axis=1).mean())
+    same_views = all(info["views"].shape == views.shape and np.allclose(info["views"], views) for info in infos)
+    has_gains = same_views and all(info["gains"] is not None for info in infos)
+    has_mesh = all(info["mesh_id"] is not None for info in infos)
+    return ShardSet(
+        paths=list(paths), grids=grids, palette=palette,
+        targets=np.concatenate([info["targets"] for info in infos]),
+        mesh_ids=np.concatenate([info["mesh_id"] for info in infos]) if has_mesh else None,
+        gains=np.concatenate([info["gains"] for info in infos]).astype(np.float32) if has_gains else None,
+        view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
+        view_radius=radius, grid_size=size)
+
+
+def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(train indices, val indices, a description) for a ``random`` or ``mesh`` split.
+
+    random: a seeded permutation of the samples, the first ``round(val_fraction * N)`` held out.
+    mesh: a seeded permutation of the mesh ids, the first ``max(1, round(val_fraction * M))``
+    meshes held out whole (object-disjoint).
+    """
+    rng = np.random.default_rng([seed, 0x5EED])
+    n = len(data)
+    if kind == "random":
+        order = rng.permutation(n)
+        n_val = min(max(1, round(val_fraction * n)), n - 1)
+        val, train = np.sort(order[:n_val]), np.sort(order[n_val:])
+        return train, val, {"kind": "random", "seed": seed, "val_fraction": val_fraction}
+    if kind != "mesh":
+        raise ValueError(f"split={kind!r}: use random or mesh")
+    if data.mesh_ids is None:
+        raise ShardError("--split mesh needs mesh ids, and these shards have none (imported data): use --split random")
+    meshes = np.unique(data.mesh_ids)
+    if len(meshes) < 2:
+        raise ShardError(f"--split mesh needs at least 2 meshes, the shards hold {len(meshes)}: use --split random")
+    held = rng.permutation(meshes)[: min(max(1, round(val_fraction * len(meshes))), len(meshes) - 1)]
+    is_val = np.isin(data.mesh_ids, held)
+    return (np.flatnonzero(~is_val), np.flatnonzero(is_val),
+            {"kind": "mesh", "seed": seed, "val_fraction": val_fraction, "val_meshes": sorted(held.tolist())})
+
+
+def rotate_quarter_turns(codes: np.ndarray, targets: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotate grids and targets together by ``turns`` x 90 deg about the vertical (z) axis.
+
+    codes (B, n, n, n) indexed [x, y, z] on a grid centred on the object; targets (B, 3);
+    turns (B,) in 0..3. A quarter turn maps (x, y) to (-y, x): exact on the voxel lattice.
+    """
+    codes, targets = codes.copy(), targets.copy()
+    for k in (1, 2, 3):
+        mine = turns == k
+        if not mine.any():
+            continue
+        codes[mine] = np.rot90(codes[mine], k, axes=(1, 2))
+        angle = k * np.pi / 2
+        c, s = round(np.cos(angle)), round(np.sin(angle))
+        x, y = targets[mine, 0].copy(), targets[mine, 1].copy()
+        targets[mine, 0], targets[mine, 1] = c * x - s * y, s * x + c * y
+    return codes, targets
+
+
+def to_grids(codes: np.ndarray, palette: torch.Tensor) -> torch.Tensor:
+    """(B, n, n, n) codes -> (B, 1, n, n, n) float32 probabilities on ``palette``'s device."""
+    index = torch.from_numpy(codes).to(palette.device, non_blocking=True).long()
+    return palette[index].unsqueeze(1)

@@ -1,0 +1,89 @@
+"""NBV poses from a trained checkpoint: ``Predictor(checkpoint).predict(grid)``.
+
+The network gives a position on the unit sphere's scale (regression: its tanh output,
+classification: the chosen class view). The pose puts the sensor at that direction, scaled to
+``radius * k`` metres (``radius``: the view sphere the network was trained on, 0.4 m by
+default; ``k``: the paper's factor for a larger real scene, e.g. 2.5 for a 1 m sphere), looking
+at the object centre with no rotation about the optical axis (image rows horizontal).
+
+Angles are the authors' (x, y, z, yaw, pitch, roll) with R = Rz(yaw) Ry(pitch) Rx(roll)
+world-to-camera, as in their dataset. In that convention the third row of R is the viewing
+direction, so for a look-at pose "roll" is fixed by the direction; a spin about the optical
+axis would show in yaw.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nbvdata.shards import ShardError
+from nbvdata.views import Pose
+from nbvtrain.models import NBVNet, build_model, class_positions
+
+
+@dataclass(frozen=True)
+class NBVPrediction:
+    """raw: (3,) the network's output; direction: (3,) unit; pose: the sensor pose."""
+
+    raw: np.ndarray
+    direction: np.ndarray
+    pose: Pose
+
+    def to_dict(self) -> dict:
+        x, y, z, yaw, pitch, roll = self.pose.xyzypr.tolist()
+        return {"position": [x, y, z], "yaw": yaw, "pitch": pitch, "roll": roll,
+                "direction": self.direction.tolist(), "network_output": self.raw.tolist()}
+
+
+class Predictor:
+    """A checkpoint loaded for inference (eval mode, no gradients)."""
+
+    def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
+        path = Path(checkpoint)
+        if not path.is_file():
+            raise ShardError(f"{path}: no such checkpoint (train one with nbvtrain fit; runs/NAME/best.pt)")
+        try:
+            state = torch.load(path, map_location=device, weights_only=False)
+            config = state["config"]
+            self.model: NBVNet = build_model(state["model"], config["dropout_from"], config["dropout"])
+            self.model.load_state_dict(state["state_dict"])
+        except (KeyError, RuntimeError, EOFError, ValueError) as error:
+            raise ShardError(f"{path}: not an nbvtrain checkpoint ({str(error).splitlines()[0][:80]})") from None
+        self.model.to(device).eval()
+        self.device = torch.device(device)
+        self.name, self.epoch = state["model"], state["epoch"]
+        self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
+        self.k = float(k)
+        self._classes = torch.from_numpy(class_positions()).float().to(self.device)
+
+    def outputs(self, grids: np.ndarray) -> np.ndarray:
+        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale)."""
+        grids = np.asarray(grids, dtype=np.float32)
+        if grids.ndim == 3:
+            grids = grids[None]
+        with torch.inference_mode():
+            output = self.model(torch.from_numpy(grids).to(self.device).unsqueeze(1))
+            if self.model.task == "classification":
+                output = self._classes[output.argmax(dim=1)]
+        return output.cpu().numpy().astype(np.float64)
+
+    def predict(self, grids: np.ndarray) -> list[NBVPrediction]:
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions."""
+        predictions = []
+        for raw in self.outputs(grids):
+            norm = np.linalg.norm(raw)
+            direction = raw / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+            pose = Pose.look_at(direction * self.radius * self.k)
+            predictions.append(NBVPrediction(raw, direction, pose))
+        return predictions
+
+
+def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str) -> str:
+    """The JSON ``nbvtrain predict`` prints."""
+    return json.dumps({"source": source, "model": predictor.name, "epoch": predictor.epoch,
+                       "radius": predictor.radius, "k": predictor.k, **prediction.to_dict()}, indent=2)

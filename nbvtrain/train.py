@@ -1,0 +1,303 @@
+"""``nbvtrain fit``: train an NBV network on shards, with checkpoints, curves and resume.
+
+A run folder holds::
+
+    config.yaml   the resolved TrainConfig
+    data.json     the shards (absolute paths), the split and its validation samples
+    metrics.csv   one row per epoch (see COLUMNS)
+    curves.png    the loss and error curves so far
+    last.pt       weights, optimiser, history after the last epoch (or at Ctrl-C)
+    best.pt       the epoch with the lowest validation loss
+
+Reproducible: the split, the initial weights, each epoch's batch order, its augmentation and
+its dropout masks are all derived from ``seed`` (and the epoch number), so a run resumed from
+an epoch's checkpoint continues exactly as the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+import yaml
+from torch import nn
+
+from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
+from nbvtrain.config import TrainConfig
+from nbvtrain.data import ShardSet, load_shards, rotate_quarter_turns, split_indices, to_grids
+from nbvtrain.metrics import evaluate
+from nbvtrain.models import NBVNet, build_model, class_positions, parameter_count
+
+COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
+           "seconds", "train_samples_per_s")
+EVAL_BATCH = 500
+
+
+class Interrupted(Exception):
+    """Training stopped by Ctrl-C after saving ``checkpoint``."""
+
+    def __init__(self, checkpoint: Path, epoch: int):
+        super().__init__(f"interrupted in epoch {epoch + 1}; saved {checkpoint}")
+        self.checkpoint, self.epoch = checkpoint, epoch
+
+
+@dataclass
+class FitResult:
+    out: Path
+    epochs: int
+    history: list[dict]
+    parameters: int
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device=cuda but torch sees no GPU: use --device cpu or auto")
+    return torch.device(name)
+
+
+def load_run_config(out: Path) -> TrainConfig:
+    """The settings saved in run folder ``out`` (for --resume)."""
+    path = Path(out) / "config.yaml"
+    if not path.is_file():
+        raise ConfigError(f"{out} holds no run to resume (no config.yaml): drop --resume to start one")
+    return from_dict(TrainConfig, yaml.safe_load(path.read_text()))
+
+
+def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False,
+        progress: bool = False, log: Callable[[str], None] = print) -> FitResult:
+    """Train ``config.model`` on ``shards``, writing the run folder ``out``.
+
+    With ``resume``, continue from ``out/last.pt`` (same settings but ``epochs``; ``shards``
+    may be empty to reuse the run's). Raises ``Interrupted`` after saving on Ctrl-C.
+    """
+    out = Path(out)
+    checkpoint = _start(out, config, resume)
+    if resume and not shards:
+        shards = [Path(p) for p in json.loads((out / "data.json").read_text())["shards"]]
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    device = resolve_device(config.device)
+    data = load_shards(list(shards), config.memory_limit_gb)
+    try:
+        train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
+        _write_text(out / "data.json", json.dumps({
+            "shards": [str(Path(p).resolve()) for p in data.paths], "samples": len(data),
+            "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
+            "val_indices": val_idx.tolist()}, indent=1))
+        torch.manual_seed(config.seed)
+        model = build_model(config.model, config.dropout_from, config.dropout).to(device)
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        history: list[dict] = []
+        if checkpoint is not None:
+            model.load_state_dict(checkpoint["state_dict"])
+            optimizer.load_state_dict(checkpoint["optimizer"])
+            history = checkpoint["history"]
+        log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
+            f"{len(val_idx)} validation samples ({split['kind']} split) from {len(data.paths)} shards")
+        _train(model, optimizer, data, train_idx, val_idx, config, device, out, history, progress, log)
+        return FitResult(out, len(history), history, parameter_count(model))
+    finally:
+        data.close()
+
+
+def _start(out: Path, config: TrainConfig, resume: bool) -> dict | None:
+    """Prepare the run folder; return the checkpoint to resume from, if any."""
+    last = out / "last.pt"
+    if not resume:
+        if last.exists():
+            raise ConfigError(f"{out} already holds a run: add --resume to continue it, or choose another --out")
+        out.mkdir(parents=True, exist_ok=True)
+        _write_text(out / "config.yaml", to_yaml(config))
+        return None
+    saved = load_run_config(out)
+    if to_dict(saved) | {"epochs": 0} != to_dict(config) | {"epochs": 0}:
+        changed = [k for k, v in to_dict(config).items() if k != "epochs" and to_dict(saved)[k] != v]
+        raise ConfigError(f"--resume: the run in {out} was made with other settings ({', '.join(changed)}); "
+                          "only --epochs may change: drop the others or start a new --out")
+    _write_text(out / "config.yaml", to_yaml(config))
+    if not last.exists():
+        return None  # stopped before its first epoch ended: start over in the same folder
+    return torch.load(last, map_location="cpu", weights_only=False)
+
+
+def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, train_idx: np.ndarray,
+           val_idx: np.ndarray, config: TrainConfig, device: torch.device, out: Path,
+           history: list[dict], progress: bool, log: Callable[[str], None]) -> None:
+    palette = torch.from_numpy(data.palette).to(device)
+    classes = torch.from_numpy(class_positions()).float().to(device)
+    loss_fn = nn.MSELoss() if model.task == "regression" else nn.CrossEntropyLoss()
+    first = len(history) + 1
+    if first > config.epochs:
+        log(f"{out} already has {len(history)} epochs (epochs={config.epochs}): nothing to do")
+    best = min((row["val_loss"] for row in history), default=math.inf)
+    epoch = first - 1
+    try:
+        for epoch in range(first, config.epochs + 1):
+            started = time.perf_counter()
+            model.train()
+            torch.manual_seed(_epoch_seed(config.seed, epoch))
+            rng = np.random.default_rng([config.seed, epoch])
+            order = rng.permutation(train_idx)
+            turns = rng.integers(0, 4, len(order)) if config.augment else np.zeros(len(order), dtype=np.int64)
+            batches = [(order[i:i + config.batch_size], turns[i:i + config.batch_size])
+                       for i in range(0, len(order), config.batch_size)]
+            bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
+            total = 0.0
+            for codes, targets in _prefetch(lambda b: _batch(data, *b), batches):
+                grids = to_grids(codes, palette)
+                targets = torch.from_numpy(targets).to(device)
+                output = model(grids)
+                loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                total += loss.item() * len(codes)
+                if bar is not None:
+                    bar.update(len(codes))
+                    bar.set_postfix(loss=f"{loss.item():.4f}")
+            if bar is not None:
+                bar.close()
+            train_seconds = time.perf_counter() - started
+            row = {"epoch": epoch, "train_loss": total / len(order),
+                   **_validate(model, data, val_idx, palette, classes, loss_fn, device),
+                   "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds}
+            history.append(row)
+            _save(out / "last.pt", model, optimizer, config, history, epoch, data.view_radius)
+            if row["val_loss"] < best:
+                best = row["val_loss"]
+                _save(out / "best.pt", model, optimizer, config, history, epoch, data.view_radius)
+            _write_csv(out / "metrics.csv", history)
+            _plot(out / "curves.png", history, config.model)
+            log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
+                f"mae {row['val_mae']:.4f}  angle {row['val_angle_deg']:.1f} deg  "
+                f"gain ratio {row['val_gain_ratio']:.3f}  {row['seconds']:.1f} s")
+    except KeyboardInterrupt:
+        # Keep the weights trained so far; the interrupted epoch is redone on --resume.
+        _save(out / "last.pt", model, optimizer, config, history, len(history), data.view_radius)
+        raise Interrupted(out / "last.pt", len(history)) from None
+
+
+def _epoch_seed(seed: int, epoch: int) -> int:
+    return int(np.random.default_rng([seed, epoch, 1]).integers(2 ** 62))
+
+
+def _batch(data: ShardSet, indices: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B, n, n, n) codes and (B, 3) float32 targets of ``indices``, rotated by ``turns``."""
+    codes, targets = data.grids.take(indices), data.targets[indices]
+    if turns.any():
+        codes, targets = rotate_quarter_turns(codes, targets, turns)
+    return codes, np.ascontiguousarray(targets, dtype=np.float32)
+
+
+def _prefetch(make: Callable, items: list) -> Iterator:
+    """``make(item)`` for each item, the next one prepared in a thread while the caller works."""
+    if not items:
+        return
+    with ThreadPoolExecutor(1) as pool:
+        pending = pool.submit(make, items[0])
+        for item in items[1:]:
+            ready = pending.result()
+            pending = pool.submit(make, item)
+            yield ready
+        yield pending.result()
+
+
+def _labels(targets: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
+    """(B, 3) unit targets -> (B,) index of the nearest of the 14 class views."""
+    return torch.argmax(targets @ classes.T, dim=1)
+
+
+def _validate(model: NBVNet, data: ShardSet, val_idx: np.ndarray, palette: torch.Tensor, classes: torch.Tensor,
+              loss_fn: nn.Module, device: torch.device) -> dict[str, float]:
+    model.eval()
+    predictions, loss = [], 0.0
+    with torch.inference_mode():
+        for i in range(0, len(val_idx), EVAL_BATCH):
+            index = val_idx[i:i + EVAL_BATCH]
+            output = model(to_grids(data.grids.take(index), palette))
+            targets = torch.from_numpy(data.targets[index]).to(device)
+            if model.task == "regression":
+                loss += loss_fn(output, targets).item() * len(index)
+                predictions.append(output.float().cpu().numpy())
+            else:
+                loss += loss_fn(output, _labels(targets, classes)).item() * len(index)
+                predictions.append(classes[output.argmax(dim=1)].cpu().numpy())
+    gains = data.gains[val_idx] if data.gains is not None else None
+    scores = evaluate(np.concatenate(predictions), data.targets[val_idx], gains, data.view_units)
+    return {"val_loss": loss / len(val_idx), **{f"val_{k}": v for k, v in scores.items()}}
+
+
+def _save(path: Path, model: NBVNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
+          history: list[dict], epoch: int, view_radius: float) -> None:
+    """A checkpoint: weights, optimiser, settings, model name, history; written atomically."""
+    state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
+             "view_radius": view_radius,
+             "state_dict": model.state_dict(), "optimizer": optimizer.state_dict(), "history": history,
+             "target": "unit NBV position (x, y, z) / view radius"}
+    partial = path.with_name(path.name + ".partial")
+    torch.save(state, partial)
+    os.replace(partial, path)
+
+
+def _write_text(path: Path, text: str) -> None:
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(text)
+    os.replace(partial, path)
+
+
+def _write_csv(path: Path, history: list[dict]) -> None:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in history:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    _write_text(path, buffer.getvalue())
+
+
+def _plot(path: Path, history: list[dict], title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    epochs = [row["epoch"] for row in history]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
+    left.plot(epochs, [row["train_loss"] for row in history], label="train loss")
+    left.plot(epochs, [row["val_loss"] for row in history], label="val loss")
+    left.plot(epochs, [row["val_mae"] for row in history], label="val MAE", linestyle="--")
+    left.set_yscale("log")
+    left.set_xlabel("epoch")
+    left.legend()
+    right.plot(epochs, [row["val_angle_deg"] for row in history], color="tab:red", label="val angle (deg)")
+    right.set_xlabel("epoch")
+    right.set_ylabel("angle to the ground-truth NBV (deg)")
+    if not all(math.isnan(row["val_gain_ratio"]) for row in history):
+        twin = right.twinx()
+        twin.plot(epochs, [row["val_gain_ratio"] for row in history], color="tab:green", label="gain ratio")
+        twin.set_ylabel("gain of nearest view / best gain")
+        twin.set_ylim(0, 1.02)
+    fig.suptitle(title)
+    fig.tight_layout()
+    partial = path.with_name(path.name + ".partial.png")
+    fig.savefig(partial, dpi=90)
+    plt.close(fig)
+    os.replace(partial, path)
+
+
+def _bar(total: int, description: str, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=description, unit="sample", leave=False, file=sys.stderr)

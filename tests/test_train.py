@@ -1,0 +1,207 @@
+"""nbvtrain on smoke shards: the run folder, exact resume, Ctrl-C, augmentation, splits,
+lazy loading, metrics, prediction and the baselines."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nbvdata.cli import main as nbvdata_main
+from nbvdata.config import GridConfig
+from nbvdata.grid import OccupancyGrid
+from nbvdata.shards import Shard
+from nbvtrain.baselines import mean_direction, nearest_neighbour_indices
+from nbvtrain.cli import main
+from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
+from nbvtrain.metrics import evaluate
+from nbvtrain.predict import Predictor
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("smoke") / "shards"
+    assert nbvdata_main(["generate", "--config", str(ROOT / "configs" / "smoke.yaml"), "--out", str(out),
+                         "--no-progress"]) == 0
+    return out
+
+
+def _weights(run: Path) -> dict[str, torch.Tensor]:
+    return torch.load(run / "last.pt", weights_only=False)["state_dict"]
+
+
+def test_fit_writes_a_complete_run_folder(shards, tmp_path):
+    run = tmp_path / "run"
+    assert main(["fit", str(shards), "--epochs", "2", "--out", str(run), *FAST]) == 0
+    assert {p.name for p in run.iterdir()} >= {"config.yaml", "data.json", "metrics.csv", "curves.png",
+                                               "last.pt", "best.pt"}
+    rows = (run / "metrics.csv").read_text().splitlines()
+    assert rows[0].split(",")[:7] == ["epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg",
+                                      "val_gain_ratio"]
+    assert len(rows) == 3
+    checkpoint = torch.load(run / "best.pt", weights_only=False)
+    assert checkpoint["model"] == "nbvnet-3-3" and checkpoint["config"]["batch_size"] == 16
+    for row in checkpoint["history"]:
+        assert 0 < row["val_gain_ratio"] <= 1 and 0 <= row["val_angle_deg"] <= 180
+        assert row["val_mse"] == pytest.approx(row["val_loss"])
+    data = json.loads((run / "data.json").read_text())
+    assert data["train_samples"] + data["val_samples"] == data["samples"] == 72
+    assert (run / "config.yaml").read_text().startswith("model: nbvnet-3-3")
+
+
+def test_resume_continues_exactly_like_an_uninterrupted_run(shards, tmp_path):
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    assert main(["fit", str(shards), "--epochs", "3", "--augment", "--out", str(straight), *FAST]) == 0
+    assert main(["fit", str(shards), "--epochs", "2", "--augment", "--out", str(resumed), *FAST]) == 0
+    assert main(["fit", "--resume", "--epochs", "3", "--out", str(resumed), "--no-progress"]) == 0
+    a, b = _weights(straight), _weights(resumed)
+    assert all(torch.equal(a[key], b[key]) for key in a)
+    assert (straight / "metrics.csv").read_text().splitlines()[1:] != []
+    strip = lambda path: [line.split(",")[:7] for line in path.read_text().splitlines()]  # noqa: E731
+    assert strip(straight / "metrics.csv") == strip(resumed / "metrics.csv")
+
+
+def test_user_errors_exit_2_with_one_line(shards, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["fit", "--out", str(run)]) == 2
+    assert main(["fit", "--resume", "--out", str(tmp_path / "none")]) == 2
+    assert main(["fit", str(tmp_path / "missing"), "--out", str(run)]) == 2
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), *FAST]) == 0
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), *FAST]) == 2
+    assert main(["fit", "--resume", "--model", "nbvnet-4-5", "--out", str(run)]) == 2
+    assert main(["fit", str(shards), "--set", "dropuot=0.1", "--out", str(tmp_path / "x")]) == 2
+    assert main(["fit", str(shards), "--split", "mesh", "--val-fraction", "0.2", "--epochs", "1",
+                 "--out", str(tmp_path / "mesh"), *FAST]) == 0
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 6
+    assert "no shards given" in errors[0] and "no run to resume" in errors[1]
+    assert "no such shard" in errors[2] and "add --resume" in errors[3]
+    assert "only --epochs may change" in errors[4] and "did you mean 'dropout'" in errors[5]
+
+
+def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
+    run = tmp_path / "run"
+    process = subprocess.Popen([sys.executable, "-m", "nbvtrain", "fit", str(shards), "--epochs", "100000",
+                                "--out", str(run), *FAST], stderr=subprocess.PIPE, text=True,
+                               env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    deadline = time.time() + 120
+    while not (run / "last.pt").exists() and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "continue with: nbvtrain fit --resume" in err
+    done = torch.load(run / "last.pt", weights_only=False)["epoch"]
+    assert done >= 1
+    assert main(["fit", "--resume", "--epochs", str(done + 1), "--out", str(run), "--no-progress"]) == 0
+    assert len((run / "metrics.csv").read_text().splitlines()) == done + 2
+
+
+def test_quarter_turns_rotate_grid_and_target_together(rng):
+    centres = OccupancyGrid(GridConfig()).voxel_centres()
+    for _ in range(20):
+        voxel = tuple(rng.integers(0, 32, 3))
+        codes = np.zeros((1, 32, 32, 32), dtype=np.uint8)
+        codes[(0, *voxel)] = 1
+        target = centres[voxel][None].astype(np.float32)
+        for turns in range(4):
+            rotated, moved = rotate_quarter_turns(codes, target, np.array([turns]))
+            (where,) = np.argwhere(rotated[0] == 1)
+            np.testing.assert_allclose(centres[tuple(where)], moved[0], atol=1e-7)
+            assert rotated.sum() == 1
+    assert rotate_quarter_turns(codes, target, np.array([0]))[0] is not codes  # inputs untouched
+
+
+def test_splits_are_seeded_disjoint_and_object_disjoint(shards):
+    data = load_shards([*sorted(shards.glob("*.h5"))])
+    try:
+        train, val, _ = split_indices(data, "random", 0.2, seed=3)
+        assert len(np.intersect1d(train, val)) == 0 and len(train) + len(val) == len(data)
+        assert np.array_equal(split_indices(data, "random", 0.2, seed=3)[1], val)
+        assert not np.array_equal(split_indices(data, "random", 0.2, seed=4)[1], val)
+        train, val, info = split_indices(data, "mesh", 0.34, seed=3)
+        assert len(info["val_meshes"]) == 2
+        assert not set(data.mesh_ids[train]) & set(data.mesh_ids[val])
+        assert set(data.mesh_ids[val]) == set(info["val_meshes"])
+    finally:
+        data.close()
+
+
+def test_lazy_loading_gives_the_same_grids_as_in_memory(shards, rng):
+    paths = sorted(shards.glob("*.h5"))
+    memory, lazy = load_shards(paths), load_shards(paths, memory_limit_gb=0)
+    try:
+        index = rng.permutation(len(memory))[:40]
+        assert np.array_equal(memory.grids.take(index), lazy.grids.take(index))
+        with Shard(paths[0]) as first, Shard(paths[1]) as shard:  # both decode to the shard's probabilities
+            start = len(first)
+            np.testing.assert_array_equal(memory.palette[memory.grids.take(np.array([start]))][0], shard.grids(0))
+    finally:
+        memory.close()
+        lazy.close()
+
+
+def test_metrics_on_known_predictions():
+    views = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
+    gains = np.array([[0.1, 0.4, 0.2], [0.3, 0.0, 0.6]], dtype=np.float32)
+    targets = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    perfect = evaluate(targets, targets, gains, views)
+    assert perfect == {"mse": 0.0, "mae": 0.0, "angle_deg": 0.0, "gain_ratio": 1.0}
+    wrong = evaluate(-targets, targets, gains, views)
+    assert wrong["angle_deg"] == pytest.approx(180) and wrong["mse"] == pytest.approx(4 / 3)
+    # predictions nearest to view 0 in both states: 0.1/0.4 and 0.3/0.6
+    assert evaluate(np.array([[0, 0.1, 1.0], [0.1, 0, 1.0]]), targets, gains, views)["gain_ratio"] == \
+        pytest.approx((0.25 + 0.5) / 2)
+    assert np.isnan(evaluate(targets, targets)["gain_ratio"])
+
+
+def test_predict_gives_a_look_at_pose_at_the_scaled_radius(shards, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), *FAST]) == 0
+    capsys.readouterr()
+    shard = sorted(shards.glob("*.h5"))[0]
+    assert main(["predict", str(shard), "--index", "2", "--checkpoint", str(run / "best.pt"), "--k", "2.5"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    position = np.array(result["position"])
+    assert np.linalg.norm(position) == pytest.approx(0.4 * 2.5)
+    np.testing.assert_allclose(position / 1.0, np.array(result["direction"]), atol=1e-12)
+    predictor = Predictor(run / "best.pt")
+    with Shard(shard) as s:
+        grid = s.grids(2)
+    np.save(tmp_path / "grid.npy", grid)
+    (prediction,) = predictor.predict(grid)
+    np.testing.assert_allclose(prediction.pose.direction, -prediction.direction, atol=1e-12)  # looks at centre
+    assert abs(prediction.pose.rotation[0, 2]) < 1e-12  # image rows horizontal: no spin about the axis
+    np.testing.assert_allclose(prediction.direction, np.array(result["direction"]), atol=1e-6)
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(run / "best.pt")]) == 0
+    assert main(["predict", str(shard), "--checkpoint", str(tmp_path / "nope.pt")]) == 2
+    assert main(["predict", str(shard), "--index", "999", "--checkpoint", str(run / "best.pt")]) == 2
+
+
+def test_classification_net_trains_on_the_same_shards(shards, tmp_path):
+    run = tmp_path / "class"
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), "--model", "nbvnet-class",
+                 "--batch-size", "16", "--threads", "1", "--no-progress"]) == 0
+    (prediction,) = Predictor(run / "best.pt").predict(np.full((32, 32, 32), 0.5, dtype=np.float32))
+    assert np.linalg.norm(prediction.raw) == pytest.approx(1.0)  # one of the 14 class views
+
+
+def test_baselines(shards):
+    data = load_shards(sorted(shards.glob("*.h5")))
+    try:
+        train, val, _ = split_indices(data, "random", 0.2, seed=0)
+        assert np.array_equal(nearest_neighbour_indices(data, train, train[:10]), train[:10])  # itself
+        scores = mean_direction(data, train, val)
+        assert 0 < scores["mse"] < 1 and 0 < scores["gain_ratio"] <= 1
+    finally:
+        data.close()
