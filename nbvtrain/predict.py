@@ -14,9 +14,11 @@ axis would show in yaw.
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -56,6 +58,7 @@ class Predictor:
             raise ShardError(f"{path}: not an nbvtrain checkpoint ({str(error).splitlines()[0][:80]})") from None
         self.model.to(device).eval()
         self.device = torch.device(device)
+        self._features = _fast_features(self.model, self.device)
         self.name, self.epoch = state["model"], state["epoch"]
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)
@@ -67,7 +70,8 @@ class Predictor:
         if grids.ndim == 3:
             grids = grids[None]
         with torch.inference_mode():
-            output = self.model(torch.from_numpy(grids).to(self.device).unsqueeze(1))
+            output = self._features(torch.from_numpy(grids).to(self.device).unsqueeze(1))
+            output = self.model.head(output)
             if self.model.task == "classification":
                 output = self._classes[output.argmax(dim=1)]
         return output.cpu().numpy().astype(np.float64)
@@ -81,6 +85,18 @@ class Predictor:
             pose = Pose.look_at(direction * self.radius * self.k)
             predictions.append(NBVPrediction(raw, direction, pose))
         return predictions
+
+
+def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The convolutional part for inference: on a CPU with oneDNN, the layers converted to
+    oneDNN's blocked layout (2.3x faster at batch 1 here: 3.3 vs 7.7 ms for nbvnet-4-5, the
+    same outputs to 1e-8; benchmarks/predict.py); elsewhere the model's own layers."""
+    if device.type != "cpu" or not torch.backends.mkldnn.is_available():
+        return model.features
+    from torch.utils import mkldnn
+
+    features = mkldnn.to_mkldnn(copy.deepcopy(model.features))
+    return lambda grids: features(grids.to_mkldnn()).to_dense()
 
 
 def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str) -> str:
