@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import resource
 import sys
 import time
 from pathlib import Path
@@ -17,9 +18,10 @@ import numpy as np
 
 from nbvdata import __version__
 from nbvdata.config import ConfigError, SimConfig, load_config
+from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import ShardError
+from nbvdata.shards import ShardError, shard_files
 
 
 class UsageError(Exception):
@@ -118,30 +120,38 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_legacy(args: argparse.Namespace) -> int:
+    """Stream the authors' published dataset (.zip or .npy) into shards; resumes an interrupted import."""
+    from nbvdata.legacy import import_legacy
+
+    if args.rows_per_shard < 1:
+        raise UsageError(f"--rows-per-shard {args.rows_per_shard}: must be >= 1")
+    if args.limit is not None and args.limit < 1:
+        raise UsageError(f"--limit {args.limit}: must be >= 1 (leave it out to import every row)")
+    try:
+        report = import_legacy(args.volumes, args.poses, args.out, args.rows_per_shard, args.limit,
+                               show_progress=args.progress)
+    except KeyboardInterrupt:
+        print("nbvdata import-legacy: interrupted; finished shards are kept, run the same command "
+              "again to continue", file=sys.stderr)
+        return 130
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    rate = report.rows / report.seconds if report.seconds else 0.0
+    print(f"imported {report.rows} rows into {len(report.written)} shards in {args.out} "
+          f"({len(report.run_lengths)} runs) in {report.seconds:.1f} s ({rate:.0f} rows/s), "
+          f"peak memory {peak:.0f} MiB"
+          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+    return 0
+
+
 def cmd_inspect(args: argparse.Namespace) -> int:
     """Print samples per mesh, coverage statistics and the spread of labels over the views."""
     from nbvdata.summary import format_summary, summarise
 
-    paths = _shard_paths(args.shards)
+    paths = shard_files(args.shards)
     summary = summarise(paths)
     print(format_summary(summary, top=args.top))
     return 1 if summary.problems else 0
-
-
-def _shard_paths(items: list[Path]) -> list[Path]:
-    """Shard files from file and folder arguments (a folder contributes its *.h5)."""
-    paths = []
-    for item in items:
-        if item.is_dir():
-            found = sorted(item.glob("*.h5"))
-            if not found:
-                raise UsageError(f"{item}: no .h5 shards in this folder; run nbvdata generate --out {item}")
-            paths += found
-        elif item.exists():
-            paths.append(item)
-        else:
-            raise UsageError(f"{item}: no such shard or folder")
-    return paths
 
 
 def cmd_show(args: argparse.Namespace) -> int:
@@ -188,17 +198,24 @@ def _show_sample(args: argparse.Namespace) -> int:
         i = args.index
         probabilities = shard.grids(i)
         positions = shard["view_positions"]
-        gains, overlaps = shard.file["gains"][i], shard.file["overlaps"][i]
         nbv, run, step = int(shard.file["nbv_index"][i]), int(shard.file["run"][i]), int(shard.file["step"][i])
-        coverage = shard.file["coverage"][i]
+        scored = shard.has("gains") and shard.has("overlaps")  # imported shards carry no scores
+        gains = shard.file["gains"][i] if scored else None
+        overlaps = shard.file["overlaps"][i] if scored else None
+        coverage = shard.file["coverage"][i] if shard.has("coverage") else None
         config = shard.info.config
         source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
-    valid = overlaps >= config["oracle"]["min_overlap"]
-    ranked = [int(v) for v in np.argsort(-np.where(valid, gains, -1.0), kind="stable") if v != nbv and valid[v]]
     views = ViewSet(positions, look_at_rotations(positions))
-    title = (f"{source} run {run} step {step}: NBV {nbv} (+{100 * gains[nbv]:.1f}% surface, "
-             f"overlap {100 * overlaps[nbv]:.0f}%), coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%")
-    out = render_state(probabilities, config["grid"]["extent"], args.out, views, highlight=nbv,
+    title = f"{source} run {run} step {step}: NBV {nbv}"
+    ranked: list[int] = []
+    if scored:
+        valid = overlaps >= config["oracle"]["min_overlap"]
+        ranked = [int(v) for v in np.argsort(-np.where(valid, gains, -1.0), kind="stable") if v != nbv and valid[v]]
+        title += f" (+{100 * gains[nbv]:.1f}% surface, overlap {100 * overlaps[nbv]:.0f}%)"
+    if coverage is not None:
+        title += f", coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%"
+    extent = config.get("grid", {}).get("extent", SimConfig().grid.extent)  # imported: not published
+    out = render_state(probabilities, extent, args.out, views, highlight=nbv,
                        others=ranked[:args.top], title=title)
     print(f"wrote {out}")
     return 0
@@ -245,6 +262,17 @@ def build_parser() -> argparse.ArgumentParser:
                      help="show a progress bar (default: on a terminal)")
     gen.set_defaults(func=cmd_generate)
 
+    legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
+    legacy.add_argument("--volumes", type=Path, required=True,
+                        help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
+    legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
+    legacy.add_argument("--out", type=Path, required=True, help="output folder")
+    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
+    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
+    legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show a progress bar (default: on a terminal)")
+    legacy.set_defaults(func=cmd_import_legacy)
+
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
@@ -272,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return args.func(args)
-    except (ConfigError, MeshError, ShardError, UsageError) as error:
+    except (ConfigError, LegacyError, MeshError, ShardError, UsageError) as error:
         print(f"nbvdata {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,8 +1,13 @@
 """What a set of shards holds: samples per mesh, coverage statistics, how labels spread over
-the views. Backs ``nbvdata inspect``; reads everything but the grids."""
+the views. Backs ``nbvdata inspect``; reads everything but the grids.
+
+Imported shards (no ``mesh_id``) count under one entry per dataset, named by their ``source``
+without its row range; statistics of datasets they lack (gains, overlaps, coverage) show "-".
+"""
 
 from __future__ import annotations
 
+import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,11 +21,19 @@ from nbvdata.shards import Shard, ShardError
 class MeshSummary:
     source: str
     shards: int = 0
-    runs: int = 0
     samples: int = 0
     first_coverage: list[float] = field(default_factory=list)
     final_coverage: list[float] = field(default_factory=list)
-    steps: list[int] = field(default_factory=list)
+    last_steps: dict[int, int] = field(default_factory=dict)  # run: its last step seen
+
+    @property
+    def steps(self) -> list[int]:
+        """Scans per run (a run split over several shards counts once)."""
+        return list(self.last_steps.values())
+
+    @property
+    def runs(self) -> int:
+        return len(self.last_steps)
 
 
 @dataclass
@@ -56,25 +69,32 @@ def summarise(paths: list[Path]) -> Summary:
             min_overlap = info.config.get("oracle", {}).get("min_overlap", 0.0)
             for mesh in info.meshes:
                 summary.meshes.setdefault(mesh["id"], MeshSummary(mesh["source"])).shards += 1
+            if shard.has("mesh_id"):
+                mesh_ids = shard["mesh_id"].astype(str)
+            else:
+                dataset = re.sub(r" rows \d+-\d+$", "", info.source)
+                summary.meshes.setdefault(dataset, MeshSummary(dataset)).shards += 1
+                mesh_ids = np.full(len(shard), dataset)
             if not len(shard):
                 continue
-            mesh_ids, runs, steps = shard["mesh_id"], shard["run"], shard["step"]
-            coverage, nbv = shard["coverage"], shard["nbv_index"]
-            gains, overlaps = shard["gains"], shard["overlaps"]
+            runs, steps, nbv = shard["run"], shard["step"], shard["nbv_index"]
+            coverage = shard["coverage"] if shard.has("coverage") else None
             summary.nbv_counts.update(nbv.tolist())
-            summary.best_gain.append(gains[np.arange(len(nbv)), nbv])
-            summary.valid_share.append((overlaps >= min_overlap).mean(axis=1))
+            if shard.has("gains"):
+                summary.best_gain.append(shard["gains"][np.arange(len(nbv)), nbv])
+            if shard.has("overlaps"):
+                summary.valid_share.append((shard["overlaps"] >= min_overlap).mean(axis=1))
             runs_of = defaultdict(list)
-            for i, (mesh_id, run) in enumerate(zip(mesh_ids.astype(str), runs)):
+            for i, (mesh_id, run) in enumerate(zip(mesh_ids, runs)):
                 runs_of[(mesh_id, int(run))].append(i)
-            for (mesh_id, _), rows in runs_of.items():
+            for (mesh_id, run), rows in runs_of.items():
                 entry = summary.meshes.setdefault(mesh_id, MeshSummary(mesh_id[:12]))
                 rows = sorted(rows, key=lambda r: steps[r])
-                entry.runs += 1
                 entry.samples += len(rows)
-                entry.steps.append(int(steps[rows[-1]]))
-                entry.first_coverage.append(float(coverage[rows[0], 0]))
-                entry.final_coverage.append(float(coverage[rows[-1], 1]))
+                entry.last_steps[run] = max(entry.last_steps.get(run, 0), int(steps[rows[-1]]))
+                if coverage is not None:
+                    entry.first_coverage.append(float(coverage[rows[0], 0]))
+                    entry.final_coverage.append(float(coverage[rows[-1], 1]))
     return summary
 
 
@@ -98,11 +118,15 @@ def format_summary(summary: Summary, top: int = 10) -> str:
         entropy = float(-(share * np.log(share)).sum())
         lines += ["", f"labels: {len(summary.nbv_counts)} of {summary.view_count} views are ever the NBV; "
                   f"label entropy {entropy:.2f} nats (uniform over the used views: {np.log(len(counts)):.2f})",
-                  f"gain of the NBV: median {100 * np.median(np.concatenate(summary.best_gain)):.2f}% of the "
-                  f"observable surface; valid views per state: median "
-                  f"{100 * np.median(np.concatenate(summary.valid_share)):.0f}%",
+                  f"gain of the NBV: median {_median(summary.best_gain, '.2f')} of the observable surface; "
+                  f"valid views per state: median {_median(summary.valid_share, '.0f')}",
                   f"most frequent NBVs (view: samples): " + ", ".join(
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
     for problem in summary.problems:
         lines.append(f"unreadable: {problem}")
     return "\n".join(lines)
+
+
+def _median(parts: list[np.ndarray], spec: str) -> str:
+    """The median of the concatenated parts as a percentage, or "-" when there are none."""
+    return f"{100 * np.median(np.concatenate(parts)):{spec}}%" if parts else "-"
