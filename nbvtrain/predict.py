@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -93,9 +94,14 @@ def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tenso
     same outputs to 1e-8; benchmarks/predict.py); elsewhere the model's own layers."""
     if device.type != "cpu" or not torch.backends.mkldnn.is_available():
         return model.features
-    from torch.utils import mkldnn
+    try:
+        with warnings.catch_warnings():  # torch.utils.mkldnn builds on the deprecated torch.jit
+            warnings.simplefilter("ignore", DeprecationWarning)
+            from torch.utils import mkldnn
 
-    features = mkldnn.to_mkldnn(copy.deepcopy(model.features))
+            features = mkldnn.to_mkldnn(copy.deepcopy(model.features))
+    except (ImportError, AttributeError, RuntimeError):  # a torch without it: the plain layers
+        return model.features
     return lambda grids: features(grids.to_mkldnn()).to_dense()
 
 
