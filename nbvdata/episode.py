@@ -21,6 +21,7 @@ import numpy as np
 from nbvdata.grid import OccupancyGrid, ScanUpdate
 from nbvdata.oracle import pack_bits, popcount
 from nbvdata.scene import Scene
+from nbvdata.views import Pose
 
 
 class ViewCache:
@@ -59,10 +60,18 @@ class Reconstruction:
         if self.cache is not None:
             self.grid.apply(self.cache.update(view))
             self.covered |= self.scene.oracle.visible[view]
+            self.scans += 1
         else:
-            scan = self.scene.scanner.scan(self.scene.views[view], self.rng)
-            self.scene.integrate(self.grid, scan)
-            self.covered |= pack_bits(self.scene.coverage.covered_by(scan.hit_points))
+            self.scan_pose(self.scene.views[view])
+
+    def scan_pose(self, pose: Pose) -> None:
+        """Scan from any pose (a network's continuous prediction, say), cast live, and integrate.
+
+        From a candidate view's pose with a noise-free sensor this gives the same grid and
+        covered points as ``scan(view)``."""
+        scan = self.scene.scanner.scan(pose, self.rng)
+        self.scene.integrate(self.grid, scan)
+        self.covered |= pack_bits(self.scene.coverage.covered_by(scan.hit_points))
         self.scans += 1
 
 

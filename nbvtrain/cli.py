@@ -1,4 +1,5 @@
-"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, baselines.
+"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, baselines,
+closed-loop evaluation of planners.
 
 Expected user errors (a bad setting, a missing or broken shard or checkpoint) print one line
 naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
@@ -94,13 +95,59 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Reconstruct unseen objects in closed loop with each planner; coverage.csv, summary, plots."""
+    from nbvdata.config import SimConfig
+    from nbvdata.generate import mesh_sources
+    from nbvdata.mesh import MeshError
+    from nbvdata.views import view_sphere
+    from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
+    from nbvtrain.planners import PLANNERS, build_planners
+
+    names = [name.strip() for name in args.planners.split(",") if name.strip()]
+    unknown = [name for name in names if name not in PLANNERS]
+    if unknown or not names:
+        raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}")
+    if args.scans < 2:
+        raise ConfigError(f"--scans {args.scans}: must be >= 2 (the start scan and at least one planned one)")
+    if args.starts < 0:
+        raise ConfigError(f"--starts {args.starts}: must be >= 0 (0 = only the view in front)")
+    config = load_config(SimConfig, args.config, args.overrides)
+    try:
+        sources, failures = mesh_sources(args.meshes)
+    except MeshError as error:
+        raise ConfigError(str(error)) from None
+    planners, skipped = build_planners(names, config, view_sphere(config.views), args.checkpoint,
+                                       args.class_checkpoint)
+    for message in skipped:
+        print(f"nbvtrain evaluate: {message}", file=sys.stderr)
+    if not planners:
+        raise ConfigError("no planner left to run: give checkpoints or add infogain, oracle or random to --planners")
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress)
+    report.failures = failures + report.failures
+    settings = settings_dict(config, meshes=args.meshes, planners=[p.name for p in planners], scans=args.scans,
+                             starts=args.starts, seed=args.seed, checkpoint=args.checkpoint,
+                             class_checkpoint=args.class_checkpoint)
+    write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
+    runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
+    print(f"nbvtrain evaluate: {runs} reconstructions in {report.seconds:.1f} s; wrote {args.out / 'coverage.csv'}, "
+          f"{args.out / 'summary.md'} and {args.out / 'plots'}/")
+    for name, reason in report.failures:
+        print(f"nbvtrain evaluate: failed: {name}: {reason}", file=sys.stderr)
+    return 1 if report.failures else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="nbvtrain", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     fit = sub.add_parser("fit", help="train a network on shards (files or folders)")
-    fit.add_argument("shards", type=Path, nargs="*", help="shard files or folders of shards")
+    fit.add_argument("shards", type=Path, nargs="*", help="shard files or folders of shards, or one published "
+                     "version's manifest (manifests/NAME-X.Y.Z.json: verified, then trained on with its split)")
+    fit.add_argument("--root", type=Path, help="with a manifest: the folder holding its shards (default: the "
+                     "one it records)")
     fit.add_argument("--config", type=Path, help="YAML file of training settings (see configs/train.yaml)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
@@ -140,6 +187,23 @@ def build_parser() -> argparse.ArgumentParser:
     baselines.add_argument("--seed", type=int, default=0)
     baselines.add_argument("--memory-limit-gb", type=float, default=8.0)
     baselines.set_defaults(func=cmd_baselines)
+
+    evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
+    evaluate.add_argument("--meshes", type=Path, required=True, help="folder of meshes, one mesh file, or a .txt list")
+    evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt)")
+    evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class)")
+    evaluate.add_argument("--planners", default="regression,classification,infogain,oracle,random",
+                          help="comma-separated, of regression,classification,infogain,oracle,random (default all)")
+    evaluate.add_argument("--scans", type=int, default=10, help="scans per reconstruction, the start included (10)")
+    evaluate.add_argument("--starts", type=int, default=0, help="random start views per object besides the front one")
+    evaluate.add_argument("--seed", type=int, default=0, help="seed of start views, reference points, random planner")
+    evaluate.add_argument("--out", type=Path, default=Path("runs/evaluate"), help="output folder (runs/evaluate)")
+    evaluate.add_argument("--config", type=Path, help="YAML of simulation settings (as nbvdata; configs/smoke.yaml)")
+    evaluate.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                          help="override one simulation setting, e.g. --set sensor.noise_std=0.001")
+    evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                          help="show a progress bar (default: on a terminal)")
+    evaluate.set_defaults(func=cmd_evaluate)
     return parser
 
 

@@ -1,0 +1,255 @@
+"""Closed-loop reconstructions of unseen objects, one per (mesh, planner, start): ``nbvtrain evaluate``.
+
+Every planner drives the same simulator as ``nbvdata generate`` (``nbvdata.episode.Reconstruction``,
+scans cast live so continuous poses work): scan from the start view, then ``scans - 1`` times
+ask the planner for the next pose, scan there and integrate. Start 0 is the candidate view in
+front of the object (nearest to +x, as the paper starts), starts 1..K are seeded random
+candidate views (``nbvdata.episode.start_view``), the same for every planner.
+
+Outputs in the folder ``out``:
+
+    coverage.csv   one row per (mesh, planner, start, scan): coverage of all reference points and
+                   of the observable ones (seen from some candidate view), seconds the planner
+                   took to choose that scan's pose (0 for the start), the pose
+    summary.md     coverage after the last scan (objects x planners, best in bold, mean row, the
+                   paper's Table 1 figures where an object matches), and time per NBV
+    plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
+    config.yaml    the simulation settings and the evaluation's arguments
+    failures.tsv   meshes that could not be used, with the reason (only when there are some)
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from nbvdata.config import SimConfig, to_dict
+from nbvdata.episode import Reconstruction, run_seed, scene_rng, start_view
+from nbvdata.generate import MeshSource
+from nbvdata.mesh import MeshError
+from nbvdata.oracle import popcount
+from nbvdata.scene import Scene
+from nbvtrain.planners import Observation, Planner
+
+FRONT = np.array([1.0, 0.0, 0.0])
+CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
+               "x", "y", "z")
+# The paper's Table 1: coverage (%) after 10 scans, and time per NBV (s), GTX 1080.
+PAPER_COVERAGE = {  # object keyword: (classification, regression, information gain)
+    "sphere": (96.7, 95.7, 96.2), "mask": (94.7, 95.3, 95.0), "helmet": (82.7, 84.9, 86.5),
+    "sarcophagus": (64.2, 71.7, 94.1), "bunny": (90.0, 97.8, 98.1), "dragon": (71.3, 85.4, 90.4),
+    "teapot": (87.1, 93.0, 93.2), "caster": (89.1, 90.6, 100.0), "moai": (96.8, 97.1, 98.9),
+    "valve": (73.3, 70.7, 85.9), "armadillo": (84.6, 86.0, 95.2), "chair": (85.2, 84.6, 89.4),
+    "hammer": (53.2, 56.8, 57.0),
+}
+PAPER_SECONDS = {"classification": 0.01, "regression": 0.3, "infogain": 29.9}
+
+
+@dataclass
+class EvaluationReport:
+    """rows: the coverage.csv rows; failures: (mesh file, reason); seconds: wall time."""
+
+    rows: list[dict] = field(default_factory=list)
+    failures: list[tuple[str, str]] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def front_view(scene: Scene) -> int:
+    """The candidate view nearest to the front of the object (+x)."""
+    return int(np.argmax(scene.views.unit_positions @ FRONT))
+
+
+def start_views(scene: Scene, mesh_id: str, starts: int, seed: int) -> list[int]:
+    """Start 0 in front, then ``starts`` seeded random candidate views (distinct while they last)."""
+    return [front_view(scene)] + [start_view(seed, mesh_id, len(scene.views), run) for run in range(starts)]
+
+
+def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
+    """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
+    seconds and the pose position. Only a privileged planner sees the ``Reconstruction``."""
+    planner.start(seed)
+    state = Reconstruction(scene, None, np.random.default_rng(seed))
+    pose, seconds = scene.views[first_view], 0.0
+    poses, rows = [], []
+    for scan in range(1, scans + 1):
+        if scan > 1:
+            observation = Observation(state.grid.probabilities(), tuple(poses))
+            started = time.perf_counter()
+            pose = planner.next_pose(observation, state if planner.privileged else None)
+            seconds = time.perf_counter() - started
+        state.scan_pose(pose)
+        poses.append(pose)
+        x, y, z = pose.position.tolist()
+        rows.append({"scan": scan, "coverage": popcount(state.covered) / scene.oracle.points,
+                     "observable_coverage": scene.oracle.observable_coverage(state.covered),
+                     "seconds": seconds, "x": x, "y": y, "z": z})
+    return rows
+
+
+def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
+             starts: int = 0, seed: int = 0, progress: bool = False) -> EvaluationReport:
+    """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
+    then writes the files)."""
+    from tqdm import tqdm
+
+    began = time.perf_counter()
+    report = EvaluationReport()
+    bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
+               disable=not progress, dynamic_ncols=True)
+    for source in sources:
+        bar.set_postfix_str(source.stem)
+        try:
+            obj = source.load(config.mesh)
+            scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id))
+        except (MeshError, ValueError, RuntimeError) as error:
+            report.failures.append((str(source.path or source.name), str(error)))
+            print(f"nbvtrain evaluate: skipping {source.name}: {error}")
+            bar.update(len(planners) * (1 + starts))
+            continue
+        for planner in planners:
+            for number, first in enumerate(start_views(scene, source.mesh_id, starts, seed)):
+                rows = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
+                report.rows += [{"mesh": source.stem, "planner": planner.name, "start": number,
+                                 "start_view": first} | row for row in rows]
+                bar.update()
+    bar.close()
+    report.seconds = time.perf_counter() - began
+    return report
+
+
+def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skipped: list[str],
+                  settings: dict) -> None:
+    """coverage.csv, summary.md, plots/*.png, config.yaml and (if any) failures.tsv in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "coverage.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        for row in report.rows:
+            writer.writerow({key: f"{value:.6f}" if isinstance(value, float) else value for key, value in row.items()})
+    (out / "summary.md").write_text(summary_markdown(report, planners, skipped))
+    (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
+    if report.failures:
+        (out / "failures.tsv").write_text("".join(f"{name}\t{reason}\n" for name, reason in report.failures))
+    plot_coverage(report.rows, out / "plots")
+
+
+def final_coverage(rows: list[dict], key: str = "coverage") -> dict[tuple[str, str], np.ndarray]:
+    """(mesh, planner) -> (starts,) coverage after each start's last scan."""
+    last: dict[tuple[str, str, int], tuple[int, float]] = {}
+    for row in rows:
+        slot = (row["mesh"], row["planner"], row["start"])
+        if slot not in last or row["scan"] > last[slot][0]:
+            last[slot] = (row["scan"], row[key])
+    finals = defaultdict(list)
+    for (mesh, planner, _), (_, value) in sorted(last.items()):
+        finals[(mesh, planner)].append(value)
+    return {slot: np.array(values) for slot, values in finals.items()}
+
+
+def _paper(mesh: str) -> tuple[float, float, float] | None:
+    matches = [key for key in PAPER_COVERAGE if key in mesh.lower()]
+    return PAPER_COVERAGE[matches[0]] if matches else None
+
+
+def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]:
+    """Markdown rows: objects x planners, mean (+- std over starts) in %, best in bold, mean row."""
+    finals = final_coverage(rows, key)
+    meshes = sorted({mesh for mesh, _ in finals})
+    planners = [p for p in planners if any((m, p) in finals for m in meshes)]
+    with_paper = key == "coverage" and any(_paper(m) for m in meshes)
+    header = "| object | " + " | ".join(planners) + (" | paper: classif. / regression / inf. gain |" if with_paper else " |")
+    lines = [header, "|---" * (len(planners) + 1 + with_paper) + "|"]
+    means = defaultdict(list)
+    for mesh in meshes:
+        values = {p: 100 * finals[(mesh, p)] for p in planners if (mesh, p) in finals}
+        best = max(v.mean() for v in values.values())
+        cells = []
+        for planner in planners:
+            if planner not in values:
+                cells.append("-")
+                continue
+            value = values[planner]
+            means[planner].append(value.mean())
+            text = f"{value.mean():.1f}" + (f" ± {value.std():.1f}" if len(value) > 1 else "")
+            cells.append(f"**{text}**" if np.isclose(value.mean(), best) else text)
+        paper = _paper(mesh)
+        extra = [" / ".join(f"{v:.1f}" for v in paper) if paper else "-"] if with_paper else []
+        lines.append(f"| {mesh} | " + " | ".join(cells + extra) + " |")
+    mean_cells = [f"{np.mean(means[p]):.1f}" if means[p] else "-" for p in planners]
+    lines.append("| **mean** | " + " | ".join(mean_cells + (["-"] if with_paper else [])) + " |")
+    return lines
+
+
+def summary_markdown(report: EvaluationReport, planners: list[str], skipped: list[str]) -> str:
+    """The summary: coverage tables after the last scan, and the time per NBV."""
+    rows = report.rows
+    scans = max((row["scan"] for row in rows), default=0)
+    starts = len({row["start"] for row in rows})
+    lines = [f"# Closed-loop evaluation: {len({r['mesh'] for r in rows})} objects, {scans} scans, "
+             f"{starts} start{'s' if starts != 1 else ''} per object", ""]
+    lines += [f"Coverage (%) of the surface after scan {scans}" + (", mean ± std over starts" if starts > 1 else "")
+              + "; best per object in bold.", ""]
+    lines += coverage_table(rows, planners, "coverage")
+    lines += ["", f"Observable coverage (%) after scan {scans}: of the surface some candidate view can see.", ""]
+    lines += coverage_table(rows, planners, "observable_coverage")
+    lines += ["", "Time per NBV (the planner's decision; the paper's on a GTX 1080).", "",
+              "| planner | median ms | mean ms | max ms | decisions | paper s |", "|---|---|---|---|---|---|"]
+    times = defaultdict(list)
+    for row in rows:
+        if row["scan"] > 1:
+            times[row["planner"]].append(1e3 * row["seconds"])
+    for planner in planners:
+        if times[planner]:
+            t = np.array(times[planner])
+            paper = PAPER_SECONDS.get(planner)
+            lines.append(f"| {planner} | {np.median(t):.2f} | {t.mean():.2f} | {t.max():.2f} | {len(t)} | "
+                         f"{paper if paper is not None else '-'} |")
+    if skipped or report.failures:
+        lines.append("")
+    lines += [f"- {message}" for message in skipped]
+    lines += [f"- mesh {name} failed: {reason}" for name, reason in report.failures]
+    return "\n".join(lines) + "\n"
+
+
+def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
+    """One PNG per object: coverage (%) against scans, a line per planner (mean over starts,
+    shaded from the lowest to the highest start)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    series = defaultdict(lambda: defaultdict(dict))  # mesh -> planner -> start -> {scan: coverage}
+    for row in rows:
+        series[row["mesh"]][row["planner"]].setdefault(row["start"], {})[row["scan"]] = 100 * row["coverage"]
+    paths = []
+    for mesh, planners in sorted(series.items()):
+        figure, axes = plt.subplots(figsize=(6, 4))
+        for planner, starts in planners.items():
+            scans = sorted(next(iter(starts.values())))
+            values = np.array([[start[s] for s in scans] for start in starts.values()])
+            axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
+            if len(values) > 1:
+                axes.fill_between(scans, values.min(axis=0), values.max(axis=0), alpha=0.15)
+        axes.set(xlabel="scan", ylabel="coverage (%)", title=mesh, ylim=(0, 100))
+        axes.grid(alpha=0.3)
+        axes.legend(loc="lower right", fontsize=8)
+        figure.tight_layout()
+        path = folder / f"{mesh}.png"
+        figure.savefig(path, dpi=100)
+        plt.close(figure)
+        paths.append(path)
+    return paths
+
+
+def settings_dict(config: SimConfig, **arguments) -> dict:
+    """config.yaml's content: the evaluation's arguments, then the simulation settings."""
+    return {"evaluate": {key: str(value) if isinstance(value, Path) else value for key, value in arguments.items()},
+            **to_dict(config)}

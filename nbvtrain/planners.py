@@ -1,0 +1,278 @@
+"""Next-best-view planners behind one interface: ``planner.next_pose(observation) -> Pose``.
+
+A planner decides from what a real robot has, an ``Observation``: the occupancy grid and the
+poses scanned so far. Only the oracle is privileged: it is also handed the simulation's
+``Reconstruction`` (which knows the mesh) and is an upper bound, not a method.
+
+- ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
+  candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
+- ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
+- ``infogain``: Kriegel et al. 2012, exhaustive over 20 views spread like the candidate views
+  (``views.layout``: the upper hemisphere by default, as the authors' data): every sensor
+  ray walks the grid from the sensor (OctoMap's DDA, as the integration) until the first
+  occupied voxel (p > 0.5) or the sensor's far range, adding the entropy H(p) of every unknown
+  voxel it passes inside the object's box. A view must pass the overlap constraint, estimated
+  from the grid: of its rays that reach the box and meet a non-free voxel there, the share whose
+  first such voxel is known occupied (surface seen before) must be >= ``min_overlap``.
+- ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
+- ``random``: a seeded uniformly random candidate view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
+from nbvdata.episode import Reconstruction
+from nbvdata.grid import _walk_start, _walk_step
+from nbvdata.sensor import camera_rays
+from nbvdata.views import Pose, ViewSet, look_at_rotations, sphere_positions
+
+PLANNERS = ("regression", "classification", "infogain", "oracle", "random")
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a robot knows at a state.
+
+    probabilities : (n, n, n) float32 occupancy grid, authors' encoding (0.5 = unknown)
+    poses : the sensor poses scanned so far, oldest first
+    """
+
+    probabilities: np.ndarray
+    poses: tuple[Pose, ...]
+
+
+class Planner:
+    """Base class. ``privileged`` planners also receive the simulation's state (the oracle)."""
+
+    name = "planner"
+    privileged = False
+
+    def start(self, seed: int) -> None:
+        """Called before every reconstruction; ``seed`` is that reconstruction's own seed."""
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        raise NotImplementedError
+
+
+class LearnedPlanner(Planner):
+    """A trained checkpoint (regression or classification), through ``nbvtrain.predict``."""
+
+    def __init__(self, checkpoint: str | Path, radius: float, expect: str):
+        from nbvtrain.predict import Predictor
+
+        self.predictor = Predictor(checkpoint, radius=radius)
+        task = self.predictor.model.task
+        if task != expect:
+            flag = "--class-checkpoint" if task == "classification" else "--checkpoint"
+            raise ConfigError(f"{checkpoint}: a {task} network ({self.predictor.name}); pass it with {flag}")
+        self.name = expect
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        (prediction,) = self.predictor.predict(observation.probabilities)
+        return prediction.pose
+
+
+class OraclePlanner(Planner):
+    """The valid candidate view with the largest exact gain (``nbvdata.oracle``); when no view
+    passes the overlap constraint, the one with the largest gain."""
+
+    name = "oracle"
+    privileged = True
+
+    def __init__(self, views: ViewSet, min_overlap: float):
+        self.views, self.min_overlap = views, min_overlap
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        scores = truth.scene.oracle.score(truth.covered)
+        best = scores.best(self.min_overlap)
+        return self.views[best if best is not None else int(np.argmax(scores.gains))]
+
+
+class RandomPlanner(Planner):
+    """A uniformly random candidate view, seeded per reconstruction."""
+
+    name = "random"
+
+    def __init__(self, views: ViewSet):
+        self.views = views
+        self.rng = np.random.default_rng(0)
+
+    def start(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        return self.views[int(self.rng.integers(len(self.views)))]
+
+
+@dataclass(frozen=True)
+class InfoGainScores:
+    """Per view: information (nats), rays meeting known surface first, rays meeting unknown first,
+    overlap estimate; all (V,)."""
+
+    information: np.ndarray
+    known_rays: np.ndarray
+    unknown_rays: np.ndarray
+
+    @property
+    def overlaps(self) -> np.ndarray:
+        met = self.known_rays + self.unknown_rays
+        return np.divide(self.known_rays, met, out=np.zeros(len(met)), where=met > 0)
+
+
+class InfoGainPlanner(Planner):
+    """Kriegel et al. 2012 information gain over ``count`` views on the view sphere, laid out like
+    the candidate views (``layout``; see the module docstring).
+
+    The object's box is the cube of side ``box`` metres around the centre (what the robot is told
+    about the object's size, ``mesh.object_size``), not the mesh's own bounds. A voxel is unknown
+    when its probability lies in [``unknown_low``, ``unknown_high``]: by default exactly 0.5,
+    never observed; (0.2, 0.8) is Delmerico et al.'s band.
+    """
+
+    name = "infogain"
+
+    def __init__(self, grid: GridConfig, sensor: SensorConfig, radius: float, box: float, min_overlap: float,
+                 count: int = 20, layout: str = "hemisphere", unknown_low: float = 0.5, unknown_high: float = 0.5):
+        self.grid, self.min_overlap = grid, min_overlap
+        self.unknown = (np.float32(unknown_low), np.float32(unknown_high))
+        positions = sphere_positions(count, radius, layout)
+        self.views = ViewSet(positions, look_at_rotations(positions))
+        rays = camera_rays(sensor)  # (N, 3) camera frame
+        directions = np.matmul(rays[None], self.views.rotations)  # (V, N, 3) world: R^T d
+        self._origins = positions.astype(np.float32)
+        # Each ray ends at the far range, in float32 like the scan points the grid integrates.
+        self._ends = (positions[:, None] + directions * sensor.far).astype(np.float32)
+        n, resolution = grid.size, grid.resolution
+        centres = (np.arange(n) - n // 2 + 0.5) * resolution
+        inside = np.flatnonzero(np.abs(centres) <= box / 2)
+        self._box = (int(inside[0]), int(inside[-1]) + 1) if len(inside) else (0, 0)
+        self._scratch = np.zeros((n, n, n), dtype=np.uint8)  # the DDA's marks, unused here
+        self.scores(np.full((n, n, n), 0.5, dtype=np.float32))  # compile now, not in the first decision
+
+    def scores(self, probabilities: np.ndarray) -> InfoGainScores:
+        """Information gain and overlap counts of every view for a (n, n, n) grid."""
+        probabilities = np.ascontiguousarray(probabilities, dtype=np.float32)
+        information = np.zeros(self._ends.shape[:2])
+        first = np.zeros(self._ends.shape[:2], dtype=np.int8)
+        _ray_information(self._origins, self._ends, probabilities, self.grid.resolution, -(self.grid.size // 2),
+                         self._box[0], self._box[1], self.unknown[0], self.unknown[1], self._scratch,
+                         information, first)
+        return InfoGainScores(information.sum(axis=1), (first == 1).sum(axis=1), (first == 2).sum(axis=1))
+
+    def sampled_scores(self, probabilities: np.ndarray, view: int, rays: np.ndarray,
+                       step: float = 2e-5) -> tuple[float, int, int]:
+        """The slow reference for tests and benchmarks: ``scores`` of one view over the rays
+        ``rays``, found by sampling each ray every ``step`` metres instead of the DDA (it can miss
+        a voxel corner clipped by less than ``step``). Returns (information, known, unknown rays)."""
+        n, resolution = self.grid.size, self.grid.resolution
+        low, high = self._box
+        origin = self._origins[view].astype(np.float64)
+        information, known, unknown = 0.0, 0, 0
+        for ray in rays:
+            end = self._ends[view, ray].astype(np.float64)
+            length = np.linalg.norm(end - origin)
+            points = origin + (end - origin) / length * np.arange(0.0, length, step)[:, None]
+            keys = np.floor(points / resolution).astype(np.int64) + n // 2
+            keys = keys[((keys >= 0) & (keys < n)).all(axis=1)]
+            keys = keys[np.concatenate([[True], (np.diff(keys, axis=0) != 0).any(axis=1)])]  # voxels in order
+            met = 0
+            for i, j, k in keys:
+                p = probabilities[i, j, k]
+                in_box = low <= i < high and low <= j < high and low <= k < high
+                if p > 0.5:
+                    met = met or (1 if in_box else 0)
+                    break
+                if in_box and self.unknown[0] <= p <= self.unknown[1]:
+                    information += -(p * math.log(p) + (1 - p) * math.log(1 - p))
+                    met = met or 2
+            known += met == 1
+            unknown += met == 2
+        return information, known, unknown
+
+    def best_view(self, probabilities: np.ndarray) -> int:
+        """The valid view with the most information (ties: the lowest index); when no view is
+        valid, the most informative one."""
+        scores = self.scores(probabilities)
+        valid = scores.overlaps >= self.min_overlap
+        if not valid.any():
+            valid[:] = True
+        return int(np.argmax(np.where(valid, scores.information, -1.0)))
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        return self.views[self.best_view(observation.probabilities)]
+
+
+@numba.njit(cache=True, inline="always")
+def _entropy(p):
+    q = np.float64(p)
+    return -(q * math.log(q) + (1.0 - q) * math.log(1.0 - q))
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _ray_information(origins, ends, probabilities, resolution, first_key, box_low, box_high, unknown_low,
+                     unknown_high, scratch, information, first):
+    """Walk every ray of every view (origins (V, 3), ends (V, N, 3) float32) with OctoMap's DDA
+    until the first occupied voxel. Writes information[v, r] (entropy of the unknown voxels
+    passed inside the box) and first[v, r]: 1 when the first non-free box voxel met is occupied,
+    2 when it is unknown, 0 when the ray meets neither."""
+    n = probabilities.shape[0]
+    views, rays = ends.shape[0], ends.shape[1]
+    for index in numba.prange(views * rays):
+        v, r = index // rays, index % rays
+        ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
+        (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length,
+         was_inside) = _walk_start(ox, oy, oz, ends[v, r, 0], ends[v, r, 1], ends[v, r, 2], resolution,
+                                   first_key, scratch)
+        total, met = 0.0, 0
+        while active:
+            active, k0, k1, k2, t0, t1, t2, was_inside = _walk_step(
+                k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length, was_inside,
+                first_key, scratch)
+            i, j, k = k0 - first_key, k1 - first_key, k2 - first_key
+            if not (active and 0 <= i < n and 0 <= j < n and 0 <= k < n):
+                continue
+            p = probabilities[i, j, k]
+            in_box = box_low <= i < box_high and box_low <= j < box_high and box_low <= k < box_high
+            if p > 0.5:
+                if in_box and met == 0:
+                    met = 1
+                break
+            if in_box and unknown_low <= p <= unknown_high:
+                total += _entropy(p)
+                if met == 0:
+                    met = 2
+        information[v, r] = total
+        first[v, r] = met
+
+
+def build_planners(names: list[str], config: SimConfig, views: ViewSet, checkpoint: Path | None = None,
+                   class_checkpoint: Path | None = None) -> tuple[list[Planner], list[str]]:
+    """The named planners, and a message for each one skipped for want of a checkpoint."""
+    planners, skipped = [], []
+    for name in names:
+        if name == "regression" or name == "classification":
+            path = checkpoint if name == "regression" else class_checkpoint
+            if path is None:
+                flag = "--checkpoint" if name == "regression" else "--class-checkpoint"
+                model = "nbvnet-4-5" if name == "regression" else "nbvnet-class"
+                skipped.append(f"{name}: skipped, no checkpoint given (train one with nbvtrain fit SHARDS "
+                               f"--model {model}, then pass {flag} runs/NAME/best.pt)")
+                continue
+            planners.append(LearnedPlanner(path, config.views.radius, name))
+        elif name == "infogain":
+            planners.append(InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+                                            config.oracle.min_overlap, layout=config.views.layout))
+        elif name == "oracle":
+            planners.append(OraclePlanner(views, config.oracle.min_overlap))
+        elif name == "random":
+            planners.append(RandomPlanner(views))
+        else:
+            raise ConfigError(f"unknown planner {name!r}: choose from {', '.join(PLANNERS)}")
+    return planners, skipped

@@ -1,0 +1,256 @@
+"""nbvtrain evaluate and its planners: the full command on two small meshes, blindness of the
+robot's planners to the mesh, information gain against a slow sampled reference."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nbvdata.config import SimConfig, load_config
+from nbvdata.episode import Reconstruction, ViewCache, scene_rng
+from nbvdata.generate import MeshSource
+from nbvdata.scene import Scene
+from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvtrain.cli import main
+from nbvtrain.config import TrainConfig
+from nbvtrain.evaluate import evaluate, final_coverage
+from nbvtrain.models import build_model
+from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
+                               build_planners)
+from nbvtrain.train import _save
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "configs" / "smoke.yaml"
+
+
+@pytest.fixture(scope="module")
+def config() -> SimConfig:
+    return load_config(SimConfig, SMOKE)
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("meshes")
+    for name in ("mug", "ring"):
+        BUILTIN_SHAPES[name]().export(folder / f"{name}.obj")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory) -> dict[str, Path]:
+    """Untrained (seeded) networks saved as nbvtrain checkpoints: the planners' interface only."""
+    folder = tmp_path_factory.mktemp("checkpoints")
+    paths = {}
+    for name in ("nbvnet-3-3", "nbvnet-class"):
+        torch.manual_seed(0)
+        model = build_model(name)
+        paths[name] = folder / f"{name}.pt"
+        _save(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def scene(config) -> Scene:
+    obj = builtin_object("mug", config.mesh)
+    return Scene.build(obj, config, scene_rng(0, obj.mesh_id))
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path) as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
+                 "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--scans", "5", "--starts", "2",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    assert "30 reconstructions" in capsys.readouterr().out
+    rows = _rows(out / "coverage.csv")
+    planners = ["regression", "classification", "infogain", "oracle", "random"]
+    assert len(rows) == 2 * len(planners) * 3 * 5  # meshes x planners x starts x scans
+    assert {r["planner"] for r in rows} == set(planners) and {r["mesh"] for r in rows} == {"mug", "ring"}
+    runs: dict[tuple, list[dict]] = {}
+    for row in rows:
+        runs.setdefault((row["mesh"], row["planner"], row["start"]), []).append(row)
+    for (mesh, planner, start), run in runs.items():
+        coverage = [float(r["coverage"]) for r in run]
+        assert [int(r["scan"]) for r in run] == [1, 2, 3, 4, 5]
+        assert all(0 < c <= 1 for c in coverage) and coverage == sorted(coverage)  # never decreases
+        assert float(run[0]["seconds"]) == 0 and all(float(r["seconds"]) > 0 for r in run[1:])
+        radius = np.linalg.norm([[float(r[k]) for k in "xyz"] for r in run], axis=1)
+        assert np.allclose(radius, 0.4, atol=1e-6)  # every pose on the view sphere
+        # every planner starts from the same view, so the first scan gives the same coverage
+        assert run[0]["coverage"] == runs[(mesh, "random", start)][0]["coverage"]
+        oracle = float(runs[(mesh, "oracle", start)][-1]["coverage"])
+        assert oracle >= float(runs[(mesh, "random", start)][-1]["coverage"])
+    summary = (out / "summary.md").read_text()
+    assert "| object | regression | classification | infogain | oracle | random |" in summary
+    assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
+    assert "| infogain |" in summary.split("Time per NBV")[1]
+    assert (out / "plots" / "mug.png").stat().st_size > 5000 and (out / "plots" / "ring.png").exists()
+    assert "scans: 5" in (out / "config.yaml").read_text()
+
+
+def test_planners_without_checkpoints_are_skipped_and_errors_exit_2(meshes, checkpoints, tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "regression,random", "--scans", "2",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    assert "regression: skipped, no checkpoint given" in capsys.readouterr().err
+    assert {r["planner"] for r in _rows(out / "coverage.csv")} == {"random"}
+    assert "regression: skipped" in (out / "summary.md").read_text()
+    for argv, message in [
+        (["--planners", "oracle,astar"], "--planners 'oracle,astar': choose from"),
+        (["--planners", "regression"], "no planner left to run"),
+        (["--planners", "classification", "--class-checkpoint", str(checkpoints["nbvnet-3-3"])],
+         "a regression network (nbvnet-3-3); pass it with --checkpoint"),
+        (["--scans", "1"], "--scans 1: must be >= 2"),
+    ]:
+        assert main(["evaluate", "--meshes", str(meshes), "--config", str(SMOKE), "--out", str(out), *argv]) == 2
+        assert message in capsys.readouterr().err
+
+
+def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys):
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    (folder / "mug.obj").write_bytes((meshes / "mug.obj").read_bytes())
+    (folder / "broken.obj").write_text("v 0 0 0\nv 1 0 0\n")  # no faces
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(folder), "--planners", "random", "--scans", "2", "--config", str(SMOKE),
+                 "--out", str(out), "--no-progress"]) == 1
+    assert "broken.obj" in capsys.readouterr().err and "broken.obj" in (out / "failures.tsv").read_text()
+    assert {r["mesh"] for r in _rows(out / "coverage.csv")} == {"mug"}
+
+
+class Tripwire:
+    """Wraps an object; while ``armed``, touching any of its attributes fails the test."""
+
+    armed = False
+
+    def __init__(self, target, name: str):
+        self._target, self._name = target, name
+
+    def __getattr__(self, attribute):
+        if Tripwire.armed:
+            raise AssertionError(f"a robot planner read {self._name}.{attribute}")
+        return getattr(self._target, attribute)
+
+
+class Cheat(Planner):
+    """A planner that peeks at the simulation: the tripwire must catch it."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+
+    def next_pose(self, observation, truth=None):
+        return self.scene.views[int(np.argmax(self.scene.oracle.view_counts))]
+
+
+def _run_guarded(config, scene, planners, meshes, monkeypatch):
+    """Evaluate ``planners`` on a scene whose mesh, scanner, coverage and oracle are tripwired
+    while a non-privileged planner decides."""
+    guarded = Scene(config, Tripwire(scene.object, "object"), scene.views, Tripwire(scene.scanner, "scanner"),
+                    Tripwire(scene.coverage, "coverage"), Tripwire(scene.oracle, "oracle"))
+    for planner in planners:
+        if isinstance(planner, Cheat):
+            planner.scene = guarded
+        choose = planner.next_pose
+
+        def armed(observation, truth=None, choose=choose, privileged=planner.privileged):
+            Tripwire.armed = not privileged
+            try:
+                return choose(observation, truth)
+            finally:
+                Tripwire.armed = False
+
+        planner.next_pose = armed
+    source = MeshSource("mug.obj", "0" * 64, meshes / "mug.obj")
+    with monkeypatch.context() as patch:
+        patch.setattr(Scene, "build", classmethod(lambda cls, *args, **kwargs: guarded))
+        return evaluate([source], planners, config, scans=3)
+
+
+def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, monkeypatch):
+    planners, _ = build_planners(["regression", "classification", "infogain", "random", "oracle"], config,
+                                 scene.views, checkpoints["nbvnet-3-3"], checkpoints["nbvnet-class"])
+    report = _run_guarded(config, scene, planners, meshes, monkeypatch)
+    assert len(report.rows) == len(planners) * 3 and not report.failures
+    assert isinstance(planners[-1], OraclePlanner)  # privileged: it may read the simulation
+    with pytest.raises(AssertionError, match="a robot planner read oracle.view_counts"):
+        _run_guarded(config, scene, [Cheat(scene)], meshes, monkeypatch)
+
+
+def test_scanning_a_candidate_pose_live_equals_the_cached_view(scene):
+    cached, live = (Reconstruction(scene, ViewCache(scene), np.random.default_rng(0)),
+                    Reconstruction(scene, None, np.random.default_rng(0)))
+    for view in (3, 17, 40):
+        cached.scan(view)
+        live.scan_pose(scene.views[view])
+    assert np.array_equal(cached.grid.log_odds, live.grid.log_odds) and np.array_equal(cached.covered, live.covered)
+
+
+def test_oracle_and_random_planners(scene, config):
+    state = Reconstruction(scene, None, np.random.default_rng(0))
+    state.scan(5)
+    observation = Observation(state.grid.probabilities(), (scene.views[5],))
+    pose = OraclePlanner(scene.views, config.oracle.min_overlap).next_pose(observation, state)
+    scores = scene.oracle.score(state.covered)
+    assert np.array_equal(pose.position, scene.views.positions[scores.best(config.oracle.min_overlap)])
+    planner = RandomPlanner(scene.views)
+    picks = []
+    for _ in range(2):
+        planner.start(7)
+        picks.append([tuple(planner.next_pose(observation).position) for _ in range(5)])
+    assert picks[0] == picks[1] and len(set(picks[0])) > 1
+
+
+def test_information_gain_agrees_with_a_sampled_walk(scene, config):
+    planner = InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+                              config.oracle.min_overlap)
+    state = Reconstruction(scene, None, np.random.default_rng(0))
+    for view in (0, 30):
+        state.scan(view)
+    probabilities = state.grid.probabilities()
+    scores = planner.scores(probabilities)
+    rays = np.arange(0, planner._ends.shape[1], 7)  # a seventh of the rays: the reference is slow
+    from nbvtrain.planners import _ray_information
+
+    for view in (0, 9, 19):
+        information, known, unknown = planner.sampled_scores(probabilities, view, rays)
+        ends = np.ascontiguousarray(planner._ends[view:view + 1, rays])
+        fast = np.zeros(ends.shape[:2])
+        first = np.zeros(ends.shape[:2], dtype=np.int8)
+        _ray_information(planner._origins[view:view + 1], ends, probabilities, config.grid.resolution,
+                         -(config.grid.size // 2), *planner._box, *planner.unknown, planner._scratch, fast, first)
+        assert fast.sum() == pytest.approx(information, rel=0.01)  # sampling may miss a clipped corner
+        assert information > 0
+        assert abs(int((first == 1).sum()) - known) <= 2 and abs(int((first == 2).sum()) - unknown) <= 2
+    assert scores.information.shape == (20,) and (scores.overlaps >= 0).all() and (scores.overlaps <= 1).all()
+
+
+def test_information_gain_properties(config):
+    planner = InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+                              config.oracle.min_overlap)
+    n = config.grid.size
+    unknown = planner.scores(np.full((n, n, n), 0.5, dtype=np.float32))
+    assert (unknown.information > 0).all() and (unknown.known_rays == 0).all() and (unknown.overlaps == 0).all()
+    free = planner.scores(np.full((n, n, n), 0.3, dtype=np.float32))
+    assert (free.information == 0).all() and (free.known_rays + free.unknown_rays == 0).all()
+    # an occupied shell around an unknown core: the core is hidden, every view meets known surface
+    shell = np.full((n, n, n), 0.3, dtype=np.float32)
+    shell[8:24, 8:24, 8:24] = 0.9
+    shell[10:22, 10:22, 10:22] = 0.5
+    hidden = planner.scores(shell)
+    assert (hidden.information == 0).all() and (hidden.overlaps == 1).all()
+    # leave one side of the shell unknown: the views facing it gain the most
+    opened = shell.copy()
+    opened[8:24, 8:24, 22:24] = 0.5  # the top face
+    scores = planner.scores(opened)
+    best = int(np.argmax(scores.information))
+    assert planner.views.positions[best][2] > 0.3  # a view from high above
+    assert planner.best_view(opened) == int(np.argmax(np.where(scores.overlaps >= config.oracle.min_overlap,
+                                                               scores.information, -1)))
