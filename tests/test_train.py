@@ -17,7 +17,7 @@ from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import GridConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.shards import Shard
-from nbvtrain.baselines import mean_direction, nearest_neighbour_indices
+from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_indices
 from nbvtrain.cli import main
 from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
 from nbvtrain.metrics import evaluate
@@ -203,5 +203,7 @@ def test_baselines(shards):
         assert np.array_equal(nearest_neighbour_indices(data, train, train[:10]), train[:10])  # itself
         scores = mean_direction(data, train, val)
         assert 0 < scores["mse"] < 1 and 0 < scores["gain_ratio"] <= 1
+        # on the training samples themselves the unscaled mean is the constant with the least MSE
+        assert mean_vector(data, train, train)["mse"] <= mean_direction(data, train, train)["mse"]
     finally:
         data.close()
