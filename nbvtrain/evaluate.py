@@ -235,9 +235,9 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
         for planner, starts in planners.items():
             scans = sorted(next(iter(starts.values())))
             values = np.array([[start[s] for s in scans] for start in starts.values()])
-            axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
+            (line,) = axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
             if len(values) > 1:
-                axes.fill_between(scans, values.min(axis=0), values.max(axis=0), alpha=0.15)
+                axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
         axes.set(xlabel="scan", ylabel="coverage (%)", title=mesh, ylim=(0, 100))
         axes.grid(alpha=0.3)
         axes.legend(loc="lower right", fontsize=8)
