@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import resource
 import sys
 import time
@@ -154,6 +155,65 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 1 if summary.problems else 0
 
 
+def cmd_publish(args: argparse.Namespace) -> int:
+    """Write the manifest and dataset card of a dataset version; an identical version is kept as is."""
+    from nbvdata.manifest import NOT_RECORDED, publish
+
+    started = time.perf_counter()
+    result = publish(args.shards_dir, args.name, args.version, args.manifests, args.notes, args.meshes,
+                     args.seed, args.val_fraction, args.test_fraction)
+    label = f"{args.name} {args.version}"
+    if result.identical:
+        print(f"{label}: already published, identical ({result.path}); nothing written")
+        return 0
+    content, totals = result.content, result.content["totals"]
+    print(f"published {label}: {totals['shards']} shards, {totals['samples']} samples, {totals['meshes']} meshes, "
+          f"{totals['bytes'] / 2 ** 20:.1f} MB, in {time.perf_counter() - started:.1f} s")
+    print(f"  manifest {result.path}")
+    print(f"  card     {result.path.with_suffix('.md')} (+ {result.path.with_suffix('.png').name})")
+    for kind in ("random", "mesh"):
+        print(f"  {kind} split: {_split_counts(content['splits'][kind])}")
+    unrecorded = sum(mesh["license"] == NOT_RECORDED for mesh in content["meshes"])
+    if unrecorded:
+        print(f"nbvdata publish: the licenses of {unrecorded} meshes are not recorded: pass --meshes DIR, the "
+              "folder whose MESHES.tsv lists them, with the next version", file=sys.stderr)
+    return 0
+
+
+def _split_counts(split: dict) -> str:
+    """"train 48 (4 meshes), val 12 (1 mesh), ..." for a manifest's split, or why it has none."""
+    if "unavailable" in split:
+        return split["unavailable"]
+    counts = []
+    for part in ("train", "val", "test"):
+        if part in split:
+            meshes = split[part].get("meshes")
+            counts.append(f"{part} {split[part]['samples']}" if meshes is None else
+                          f"{part} {split[part]['samples']} ({len(meshes)} mesh{'' if len(meshes) == 1 else 'es'})")
+    return ", ".join(counts)
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    """Recompute a published version's hashes and counts; name every missing, changed or extra shard."""
+    from nbvdata.manifest import verify
+
+    result = verify(args.manifest, args.root)
+    published, totals = result.published, result.published.content["totals"]
+    print(f"{args.manifest}: {published.label}, {totals['shards']} shards, {totals['samples']} samples, "
+          f"in {os.path.normpath(published.root)}")
+    for problem in result.problems:
+        print(problem)
+    if result.problems:
+        kinds = {problem.kind for problem in result.problems}
+        fixes = (["restore the files named from a good copy"] if kinds - {"extra"} else []) + (
+            ["move the extra ones away (or publish them as a new version)"] if "extra" in kinds else [])
+        print(f"{len(result.problems)} problems ({result.seconds:.1f} s): this is not the published "
+              f"{published.label}; {' and '.join(fixes)}")
+        return 1
+    print(f"ok: every shard is there, unchanged, with the samples listed; no others ({result.seconds:.1f} s)")
+    return 0
+
+
 def cmd_show(args: argparse.Namespace) -> int:
     """Render a shard sample, a saved grid (.npy), or the grid after scanning an object."""
     from nbvdata.render import render_state
@@ -277,6 +337,30 @@ def build_parser() -> argparse.ArgumentParser:
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
     inspect.set_defaults(func=cmd_inspect)
+
+    pub = sub.add_parser("publish", help="write a manifest and dataset card for a folder of shards: a dataset "
+                         "version others can cite, check and train on")
+    pub.add_argument("shards_dir", type=Path, help="folder of shards (searched recursively), e.g. nbv_dataset")
+    pub.add_argument("--name", required=True, help="dataset name, e.g. builtin-shapes")
+    pub.add_argument("--version", required=True, help="X.Y.Z: new shard schema = major, new meshes or runs = "
+                     "minor, metadata only = patch")
+    pub.add_argument("--notes", default="", help="release notes")
+    pub.add_argument("--manifests", type=Path, default=Path("manifests"),
+                     help="folder of manifests and cards (default manifests)")
+    pub.add_argument("--meshes", type=Path, help="folder the mesh files came from: every MESHES.tsv in it "
+                     "(columns file, license_or_origin) gives their licenses")
+    pub.add_argument("--seed", type=int, default=0, help="seed of both splits (default 0)")
+    pub.add_argument("--val-fraction", type=float, default=0.2,
+                     help="share of samples (random split) and of meshes (mesh split) for validation (default 0.2)")
+    pub.add_argument("--test-fraction", type=float, default=0.2,
+                     help="share of meshes held out for test in the mesh split (default 0.2)")
+    pub.set_defaults(func=cmd_publish)
+
+    ver = sub.add_parser("verify", help="check shards against a manifest: missing, changed or extra files")
+    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.0.0.json")
+    ver.add_argument("--root", type=Path, help="folder holding the shards (default: the one the manifest records, "
+                     "relative to the manifest)")
+    ver.set_defaults(func=cmd_verify)
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",

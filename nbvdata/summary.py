@@ -51,6 +51,11 @@ class Summary:
     problems: list[str] = field(default_factory=list)
 
 
+def dataset_name(source: str) -> str:
+    """An imported shard's ``source`` without its row range: the name its samples count under."""
+    return re.sub(r" rows \d+-\d+$", "", source)
+
+
 def summarise(paths: list[Path]) -> Summary:
     """Read the per-sample labels of every shard in ``paths`` (unreadable ones go to problems)."""
     summary = Summary()
@@ -72,7 +77,7 @@ def summarise(paths: list[Path]) -> Summary:
             if shard.has("mesh_id"):
                 mesh_ids = shard["mesh_id"].astype(str)
             else:
-                dataset = re.sub(r" rows \d+-\d+$", "", info.source)
+                dataset = dataset_name(info.source)
                 summary.meshes.setdefault(dataset, MeshSummary(dataset)).shards += 1
                 mesh_ids = np.full(len(shard), dataset)
             if not len(shard):

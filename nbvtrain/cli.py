@@ -38,11 +38,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
         if not args.shards:
             raise ConfigError("no shards given: nbvtrain fit SHARDS_OR_FOLDERS... (or --resume --out RUN)")
         config = load_config(TrainConfig, args.config, args.overrides + [f"{k}={v}" for k, v in flags.items()])
-    shards = shard_files(args.shards) if args.shards else []
+    manifest = args.shards[0] if len(args.shards) == 1 and args.shards[0].suffix == ".json" else None
+    shards = shard_files(args.shards) if args.shards and manifest is None else []
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     started = time.perf_counter()
     try:
-        result = fit(shards, config, out, resume=args.resume, progress=progress)
+        result = fit(shards, config, out, resume=args.resume, progress=progress, manifest=manifest, root=args.root)
     except Interrupted as stop:
         print(f"nbvtrain fit: {stop}; continue with: nbvtrain fit --resume --out {out}", file=sys.stderr)
         return 130
@@ -157,7 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--lr", type=float, help="Adam learning rate (default 1e-4)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")
-    fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out")
+    fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out; "
+                     "with a manifest, its split of that kind")
     fit.add_argument("--val-fraction", type=float, help="share held out for validation (default 0.2)")
     fit.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
                      help="rotate grids and targets by random quarter turns about z")

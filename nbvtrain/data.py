@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nbvdata.manifest import Published, random_split
 from nbvdata.shards import Shard, ShardError
 
 
@@ -143,16 +144,13 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
 def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """(train indices, val indices, a description) for a ``random`` or ``mesh`` split.
 
-    random: a seeded permutation of the samples, the first ``round(val_fraction * N)`` held out.
+    random: a seeded permutation of the samples, the first ``round(val_fraction * N)`` held out
+    (``nbvdata.manifest.random_split``, as in a published version).
     mesh: a seeded permutation of the mesh ids, the first ``max(1, round(val_fraction * M))``
     meshes held out whole (object-disjoint).
     """
-    rng = np.random.default_rng([seed, 0x5EED])
-    n = len(data)
     if kind == "random":
-        order = rng.permutation(n)
-        n_val = min(max(1, round(val_fraction * n)), n - 1)
-        val, train = np.sort(order[:n_val]), np.sort(order[n_val:])
+        train, val = random_split(len(data), val_fraction, seed)
         return train, val, {"kind": "random", "seed": seed, "val_fraction": val_fraction}
     if kind != "mesh":
         raise ValueError(f"split={kind!r}: use random or mesh")
@@ -161,10 +159,23 @@ def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> 
     meshes = np.unique(data.mesh_ids)
     if len(meshes) < 2:
         raise ShardError(f"--split mesh needs at least 2 meshes, the shards hold {len(meshes)}: use --split random")
+    rng = np.random.default_rng([seed, 0x5EED])
     held = rng.permutation(meshes)[: min(max(1, round(val_fraction * len(meshes))), len(meshes) - 1)]
     is_val = np.isin(data.mesh_ids, held)
     return (np.flatnonzero(~is_val), np.flatnonzero(is_val),
             {"kind": "mesh", "seed": seed, "val_fraction": val_fraction, "val_meshes": sorted(held.tolist())})
+
+
+def published_split(published: Published, kind: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(train indices, val indices, a description) from a published version's ``random`` or
+    ``mesh`` split; the indices are the samples of ``published.shard_paths`` loaded in that order.
+    The mesh split's test meshes are held out: in neither part."""
+    parts = published.split(kind)
+    split = published.content["splits"][kind]
+    description = {"kind": kind, "manifest": published.label, "seed": published.content["splits"]["seed"]}
+    if kind == "mesh":
+        description |= {"val_meshes": split["val"]["meshes"], "test_meshes": split["test"]["meshes"]}
+    return parts["train"], parts["val"], description
 
 
 def rotate_quarter_turns(codes: np.ndarray, targets: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

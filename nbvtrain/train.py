@@ -3,7 +3,8 @@
 A run folder holds::
 
     config.yaml   the resolved TrainConfig
-    data.json     the shards (absolute paths), the split and its validation samples
+    data.json     the shards (absolute paths), the split and its validation samples; when trained
+                  on a published version, its manifest (name, version, sha256, path, root)
     metrics.csv   one row per epoch (see COLUMNS)
     curves.png    the loss and error curves so far
     last.pt       weights, optimiser, history after the last epoch (or at Ctrl-C)
@@ -34,8 +35,9 @@ import yaml
 from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
+from nbvdata.manifest import Published, open_verified
 from nbvtrain.config import TrainConfig
-from nbvtrain.data import ShardSet, load_shards, rotate_quarter_turns, split_indices, to_grids
+from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
 from nbvtrain.metrics import evaluate
 from nbvtrain.models import NBVNet, build_model, class_positions, parameter_count
 
@@ -77,25 +79,35 @@ def load_run_config(out: Path) -> TrainConfig:
 
 
 def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False,
-        progress: bool = False, log: Callable[[str], None] = print) -> FitResult:
+        progress: bool = False, log: Callable[[str], None] = print, manifest: Path | None = None,
+        root: Path | None = None) -> FitResult:
     """Train ``config.model`` on ``shards``, writing the run folder ``out``.
 
-    With ``resume``, continue from ``out/last.pt`` (same settings but ``epochs``; ``shards``
-    may be empty to reuse the run's). Raises ``Interrupted`` after saving on Ctrl-C.
+    With ``manifest`` (a published NAME-X.Y.Z.json) instead of shards: verify its shards (under
+    ``root``, default the one it records), then train on exactly them with its ``config.split``
+    split. With ``resume``, continue from ``out/last.pt`` (same settings but ``epochs``;
+    ``shards`` may be empty to reuse the run's shards or manifest). Raises ``Interrupted`` after
+    saving on Ctrl-C.
     """
     out = Path(out)
     checkpoint = _start(out, config, resume)
-    if resume and not shards:
-        shards = [Path(p) for p in json.loads((out / "data.json").read_text())["shards"]]
+    shards, published = _sources(list(shards), manifest, root, out, resume)
+    if published is not None:
+        log(f"{published.label}: {len(shards)} shards verified against {published.path} "
+            f"(sha256 {published.sha256[:12]})")
     if config.threads:
         torch.set_num_threads(config.threads)
     device = resolve_device(config.device)
-    data = load_shards(list(shards), config.memory_limit_gb)
+    data = load_shards(shards, config.memory_limit_gb)
     try:
-        train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
+        if published is None:
+            train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
+        else:
+            train_idx, val_idx, split = published_split(published, config.split)
         _write_text(out / "data.json", json.dumps({
             "shards": [str(Path(p).resolve()) for p in data.paths], "samples": len(data),
             "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
+            **({} if published is None else {"manifest": published.identity}),
             "val_indices": val_idx.tolist()}, indent=1))
         torch.manual_seed(config.seed)
         model = build_model(config.model, config.dropout_from, config.dropout).to(device)
@@ -111,6 +123,30 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
         data.close()
+
+
+def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path,
+             resume: bool) -> tuple[list[Path], Published | None]:
+    """The shards to train on and, when they are a published version's, its verified manifest.
+
+    A resumed run without shards or manifest reuses its own; a resumed run of a published
+    version must find the same manifest bytes (sha256) and shards."""
+    recorded = None
+    if resume and (out / "data.json").exists():
+        saved = json.loads((out / "data.json").read_text())
+        recorded = saved.get("manifest")
+        if not shards and manifest is None:
+            if recorded is None:
+                return [Path(p) for p in saved["shards"]], None
+            manifest, root = Path(recorded["path"]), root or Path(recorded["root"])
+    if manifest is None:
+        return shards, None
+    published = open_verified(manifest, root)
+    if recorded is not None and published.sha256 != recorded["sha256"]:
+        raise ConfigError(f"--resume: {out} trains on {recorded['name']} {recorded['version']} (manifest sha256 "
+                          f"{recorded['sha256'][:12]}), but {manifest} has sha256 {published.sha256[:12]}: "
+                          "resume with that manifest, or start a new --out")
+    return published.shard_paths, published
 
 
 def _start(out: Path, config: TrainConfig, resume: bool) -> dict | None:
