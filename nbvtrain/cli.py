@@ -79,6 +79,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     """Score the mean-direction and nearest-neighbour predictors on a split, as fit would make it."""
     from nbvtrain.baselines import BASELINES
     from nbvtrain.data import load_shards, split_indices
+    from nbvtrain.metrics import format_ratio
 
     data = load_shards(shard_files(args.shards), args.memory_limit_gb)
     try:
@@ -90,7 +91,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
             started = time.perf_counter()
             scores = baseline(data, train_idx, val_idx)
             print(f"{name:20s} {scores['mse']:8.4f} {scores['mae']:8.4f} {scores['angle_deg']:7.1f}d "
-                  f"{scores['gain_ratio']:10.3f} {time.perf_counter() - started:8.1f}")
+                  f"{format_ratio(scores['gain_ratio']):>10s} {time.perf_counter() - started:8.1f}")
     finally:
         data.close()
     return 0

@@ -51,3 +51,8 @@ def evaluate(predictions: np.ndarray, targets: np.ndarray, gains: np.ndarray | N
         ratio = float(ratios.mean()) if len(ratios) else float("nan")
     return {"mse": float(np.mean(error ** 2)), "mae": float(np.mean(np.abs(error))),
             "angle_deg": float(angle_deg(predictions, targets).mean()), "gain_ratio": ratio}
+
+
+def format_ratio(value: float) -> str:
+    """A gain ratio for printing, or "-" for shards without score vectors (imported ones)."""
+    return "-" if np.isnan(value) else f"{value:.3f}"

@@ -38,7 +38,7 @@ from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
 from nbvtrain.config import TrainConfig
 from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
-from nbvtrain.metrics import evaluate
+from nbvtrain.metrics import evaluate, format_ratio
 from nbvtrain.models import NBVNet, build_model, class_positions, parameter_count
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
@@ -219,7 +219,7 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
             _plot(out / "curves.png", history, config.model)
             log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
                 f"mae {row['val_mae']:.4f}  angle {row['val_angle_deg']:.1f} deg  "
-                f"gain ratio {row['val_gain_ratio']:.3f}  {row['seconds']:.1f} s")
+                f"gain ratio {format_ratio(row['val_gain_ratio'])}  {row['seconds']:.1f} s")
     except KeyboardInterrupt:
         # Keep the weights trained so far; the interrupted epoch is redone on --resume.
         _save(out / "last.pt", model, optimizer, config, history, len(history), data.view_radius)
