@@ -174,9 +174,8 @@ def _made(content: dict) -> list[str]:
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
     command = _reproduce(content)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "
-                 "bytes are the published ones. They are with the same libraries on the same kind of CPU; "
-                 "elsewhere the views' yaw, pitch and roll may differ in the last bit (numpy's SIMD "
-                 "arctan2/arcsin), the rest is seeded and identical." if command else
+                 "bytes are the published ones (everything is seeded, independent of the number of workers and "
+                 "of the CPU's vector instructions; the same library versions are assumed)." if command else
                  "- Made with the `nbvdata.generate` API from the meshes listed below and these settings.")
     return lines + [published]
 

@@ -9,6 +9,7 @@ towards the centre. Looking straight down, image right is world +x, as in the au
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,10 @@ from nbvdata.config import ViewConfig
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 _UP = np.array([0.0, 0.0, 1.0])
+# Trigonometry that reaches the shards goes through the C library (glibc's atan2, asin, sin and
+# cos are correctly rounded), not numpy's SIMD loops, whose last bit depends on the CPU (AVX-512
+# or not): so the same settings give the same bytes on every machine.
+_atan2, _asin, _sin, _cos = (np.vectorize(f, otypes=[np.float64]) for f in (math.atan2, math.asin, math.sin, math.cos))
 
 
 def look_at_rotations(positions: np.ndarray, target: np.ndarray = np.zeros(3)) -> np.ndarray:
@@ -55,10 +60,10 @@ def rotations_to_angles(rotations: np.ndarray) -> np.ndarray:
     pitch lies in [-pi/2, pi/2]; at pitch = +-pi/2 (gimbal lock) yaw is set to 0.
     """
     r = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
-    pitch = -np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0))
+    pitch = -_asin(np.clip(r[:, 2, 0], -1.0, 1.0))
     locked = np.abs(r[:, 2, 0]) > 1 - 1e-12
-    yaw = np.where(locked, 0.0, np.arctan2(r[:, 1, 0], r[:, 0, 0]))
-    roll = np.where(locked, np.arctan2(-r[:, 1, 2], r[:, 1, 1]), np.arctan2(r[:, 2, 1], r[:, 2, 2]))
+    yaw = np.where(locked, 0.0, _atan2(r[:, 1, 0], r[:, 0, 0]))
+    roll = np.where(locked, _atan2(-r[:, 1, 2], r[:, 1, 1]), _atan2(r[:, 2, 1], r[:, 2, 2]))
     return np.stack([yaw, pitch, roll], axis=1)
 
 
@@ -122,7 +127,7 @@ def sphere_positions(count: int, radius: float, layout: str = "hemisphere") -> n
         raise ValueError(f"layout={layout!r}: must be 'hemisphere' or 'sphere'")
     ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
     phi = i * _GOLDEN_ANGLE
-    return radius * np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1)
+    return radius * np.stack([ring * _cos(phi), ring * _sin(phi), z], axis=1)
 
 
 @dataclass(frozen=True)

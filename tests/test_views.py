@@ -1,4 +1,5 @@
 import io
+import math
 import zipfile
 
 import numpy as np
@@ -84,3 +85,19 @@ def test_agrees_with_every_row_of_the_authors_poses():
     np.testing.assert_allclose(theirs[regular], ours[regular], atol=1e-4)
     # Our angles reproduce our rotations for every row.
     np.testing.assert_allclose(angles_to_rotations(rotations_to_angles(ours)), ours, atol=1e-9)
+
+
+def test_angles_and_positions_are_the_c_librarys_bits():
+    """Shards hold these values, so they must not depend on the CPU: numpy's SIMD arctan2 differs
+    in the last bit between CPUs with and without AVX-512 (on some of these 500 views), glibc's
+    correctly rounded atan2/asin/sin/cos do not."""
+    views = view_sphere(ViewConfig(count=500))
+    r = views.rotations
+    angles = views.xyzypr()[:, 3:]
+    expected_yaw = [math.atan2(row[1, 0], row[0, 0]) for row in r]
+    expected_pitch = [-math.asin(min(1.0, max(-1.0, row[2, 0]))) for row in r]
+    assert angles[:, 0].tolist() == expected_yaw and angles[:, 1].tolist() == expected_pitch
+    i = np.arange(500.0)
+    phi = i * (np.pi * (3.0 - np.sqrt(5.0)))
+    ring = np.sqrt(1.0 - ((i + 0.5) / 500) ** 2)
+    assert views.positions[:, 0].tolist() == (0.4 * (ring * np.array([math.cos(p) for p in phi]))).tolist()
