@@ -112,8 +112,9 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
             print(f"nbvtrain evaluate: skipping {source.name}: {error}")
             bar.update(len(planners) * (1 + starts))
             continue
+        firsts = start_views(scene, source.mesh_id, starts, seed)
         for planner in planners:
-            for number, first in enumerate(start_views(scene, source.mesh_id, starts, seed)):
+            for number, first in enumerate(firsts):
                 rows = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
                 report.rows += [{"mesh": source.stem, "planner": planner.name, "start": number,
                                  "start_view": first} | row for row in rows]
