@@ -42,6 +42,7 @@ A shard is written under a temporary name and renamed when complete: it is whole
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -230,6 +231,25 @@ class Shard:
     def grids(self, index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
         """(..., n, n, n) float32 occupancy probabilities of the selected samples."""
         return self.palette[self.file["grids"][index]]
+
+    def content_digests(self) -> dict[str, str]:
+        """sha256 (first 16 hex digits) of every dataset's values - raw C-order bytes with dtype
+        and shape - and of the attributes but ``package_version``, by name: equal digests mean
+        equal content, whatever HDF5 library, chunking or compression wrote the file."""
+        digests = {}
+        for name in sorted(self.file):
+            try:
+                data = np.ascontiguousarray(self.file[name][()])
+            except OSError:
+                raise ShardError(f"{self.path}: dataset {name} cannot be read (truncated or corrupt?): "
+                                 "delete it and run nbvdata generate again") from None
+            digest = hashlib.sha256(f"{data.dtype.str}{data.shape}".encode())
+            digest.update(data.tobytes())
+            digests[name] = digest.hexdigest()[:16]
+        attrs = {key: (value.tolist() if isinstance(value, np.ndarray) else value)
+                 for key, value in sorted(self.file.attrs.items()) if key != "package_version"}
+        digests["attributes"] = hashlib.sha256(repr(attrs).encode()).hexdigest()[:16]
+        return digests
 
     def close(self) -> None:
         self.file.close()
