@@ -80,7 +80,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"scan {step}: view {int(view):4d}  {int(scan.hit.sum()):5d} returns  "
               f"coverage {100 * total:5.1f}%  observable {100 * observable:5.1f}%  "
               f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
-    out = render_state(grid.probabilities(), config.grid.extent, args.out, scene.views,
+    out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
                        title=f"{obj.source}: {len(views)} scans")
     print(f"wrote {out}")
@@ -152,6 +152,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     paths = shard_files(args.shards)
     summary = summarise(paths)
     print(format_summary(summary, top=args.top))
+    if args.by_step and not summary.problems:
+        from nbvdata.gridstats import by_step, format_by_step
+
+        print("\nGrids by reconstruction step (means; span: median extent of the occupied voxels):")
+        print(format_by_step(by_step(paths)))
     return 1 if summary.problems else 0
 
 
@@ -233,7 +238,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
         obj = _load_object(args, config)
         scanner = MeshScanner(obj.mesh, config.sensor)
-        grid = OccupancyGrid(config.grid)
+        grid = OccupancyGrid(config.scene_grid)
         rng = np.random.default_rng(args.seed)
         for index in _parse_indices(args.views, len(views)):
             grid.integrate(scanner.scan(views[index], rng), config.sensor.far)
@@ -242,7 +247,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     highlight = None
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views))[0]
-    out = render_state(probabilities, config.grid.extent, args.out, views, highlight=highlight, title=title)
+    out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title)
     print(f"wrote {out}")
     return 0
 
@@ -275,7 +280,9 @@ def _show_sample(args: argparse.Namespace) -> int:
         title += f" (+{100 * gains[nbv]:.1f}% surface, overlap {100 * overlaps[nbv]:.0f}%)"
     if coverage is not None:
         title += f", coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%"
-    extent = config.get("grid", {}).get("extent", SimConfig().grid.extent)  # imported: not published
+    # the shard's cube: fixed, or fitted to the object (null extent); imported shards publish none
+    extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
+              or SimConfig().scene_grid.extent)
     out = render_state(probabilities, extent, args.out, views, highlight=nbv,
                        others=ranked[:args.top], title=title)
     print(f"wrote {out}")
@@ -337,6 +344,9 @@ def build_parser() -> argparse.ArgumentParser:
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
+    inspect.add_argument("--by-step", action="store_true",
+                         help="also the grids' occupied, unknown and corner-unknown voxels and the occupied span "
+                         "per reconstruction step, beside the authors' published grids (reads every grid)")
     inspect.set_defaults(func=cmd_inspect)
 
     pub = sub.add_parser("publish", help="write a manifest and dataset card for a folder of shards: a dataset "
