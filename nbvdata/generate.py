@@ -370,8 +370,8 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
 
 
 @contextlib.contextmanager
-def _executor(config: SimConfig, out_dir: Path, workers: int,
-              advance: Callable[[int, int], None]) -> Iterator[tuple[Callable[[list[Unit]], Iterator[UnitResult]], bool]]:
+def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[[int, int], None]
+              ) -> Iterator[tuple[Callable[[list[Unit]], Iterator[UnitResult]], bool]]:
     """``(execute, ticked)``: ``execute(units)`` runs units and yields their results as they come
     back, in-process or on a joblib backend (one thread per worker); ``ticked``: their runs are
     counted through ``advance`` one by one. Each worker claims its unit itself (``run_unit``), so
