@@ -111,9 +111,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
               f"again to continue", file=sys.stderr)
         return 130
     rate = report.samples / report.seconds if report.seconds else 0.0
+    others = len(report.others_done) + len(report.others_running)
     print(f"wrote {report.samples} samples in {len(report.done)} shards to {args.out} in "
           f"{report.seconds:.1f} s ({rate:.1f} samples/s)"
-          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+          + (f"; {len(report.skipped)} shards were already there" if report.skipped else "")
+          + (f"; {others} shards were left to another process" if others else ""))
+    if report.others_running:
+        print(f"nbvdata generate: another process is still writing {len(report.others_running)} shards into "
+              f"{args.out}; run the same command again when it has finished to check that every shard is there")
     if report.failures:
         print(f"nbvdata generate: {len(report.failures)} meshes failed, listed in "
               f"{args.out / FAILURES_FILE}", file=sys.stderr)

@@ -118,8 +118,9 @@ class GridPalette:
         return probability(np.array(self._log_odds, dtype=np.float32))
 
 
-def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
-    """Write a complete shard atomically: to ``path + .partial``, then rename over ``path``.
+def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial: Path | None = None) -> None:
+    """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
+    rename over ``path``.
 
     ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` ones may be left out);
     ``attrs`` every attribute but the version.
@@ -129,7 +130,7 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
-    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    partial = Path(partial) if partial is not None else path.with_name(path.name + PARTIAL_SUFFIX)
     try:
         with h5py.File(partial, "w", libver=("earliest", "v110")) as f:
             f.attrs["schema_version"] = SCHEMA_VERSION
