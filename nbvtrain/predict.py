@@ -24,9 +24,10 @@ from typing import Callable
 import numpy as np
 import torch
 
-from nbvdata.shards import ShardError
+from nbvdata.config import ConfigError
 from nbvdata.views import Pose
-from nbvtrain.models import NBVNet, build_model, class_positions
+from nbvtrain.checkpoint import load_checkpoint, model_from
+from nbvtrain.models import NBVNet, class_positions
 
 
 @dataclass(frozen=True)
@@ -48,17 +49,13 @@ class Predictor:
 
     def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
         path = Path(checkpoint)
-        if not path.is_file():
-            raise ShardError(f"{path}: no such checkpoint (train one with nbvtrain fit; runs/NAME/best.pt)")
+        state = load_checkpoint(path)
+        self.model: NBVNet = model_from(state, path)
         try:
-            state = torch.load(path, map_location=device, weights_only=False)
-            config = state["config"]
-            self.model: NBVNet = build_model(state["model"], config["dropout_from"], config["dropout"])
-            self.model.load_state_dict(state["state_dict"])
-        except (KeyError, RuntimeError, EOFError, ValueError) as error:
-            raise ShardError(f"{path}: not an nbvtrain checkpoint ({str(error).splitlines()[0][:80]})") from None
-        self.model.to(device).eval()
-        self.device = torch.device(device)
+            self.device = torch.device(device)
+            self.model.to(self.device).eval()
+        except (RuntimeError, AssertionError) as error:  # an unknown device, or one this torch lacks
+            raise ConfigError(f"device {device!r}: {str(error).strip()[:80]}: use cpu") from None
         self._features = _fast_features(self.model, self.device)
         self.name, self.epoch = state["model"], state["epoch"]
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))

@@ -1,0 +1,155 @@
+"""nbvtrain predict on untrusted input: checkpoints load as plain data only (a pickled object is
+refused and runs nothing), and anything else than a checkpoint is a one-line error."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+import yaml
+
+from nbvdata.config import to_yaml
+from nbvtrain.checkpoint import CheckpointError, load_checkpoint
+from nbvtrain.cli import main
+from nbvtrain.config import TrainConfig
+from nbvtrain.models import build_model
+from nbvtrain.predict import Predictor
+from nbvtrain.train import _save
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _checkpoint(path: Path, model: str = "nbvnet-3-3", history: list | None = None) -> Path:
+    torch.manual_seed(0)
+    net = build_model(model)
+    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4)
+    return path
+
+
+class WritesAFile:
+    """Unpickling this calls open(marker, "w"): code from the file would run and leave the marker."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return open, (str(self.marker), "w")
+
+
+def _one_line_error(capsys, *expected: str) -> str:
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert all(text in err for text in expected), err
+    return err
+
+
+def test_checkpoints_are_plain_data(tmp_path):
+    history = [{"epoch": np.int64(1), "train_loss": np.float64(0.5), "val_loss": np.float32(0.25)}]
+    path = _checkpoint(tmp_path / "best.pt", history=history)
+    state = torch.load(path, weights_only=True)  # raises if anything but plain data were in it
+    assert state["history"] == [{"epoch": 1, "train_loss": 0.5, "val_loss": 0.25}]
+    assert all(type(v) in (int, float) for v in state["history"][0].values())
+    assert state["config"]["model"] == "nbvnet-3-3" and isinstance(state["view_radius"], float)
+    assert Predictor(path).name == "nbvnet-3-3"
+
+
+def test_a_pickled_object_is_refused_and_its_code_never_runs(tmp_path, capsys):
+    marker = tmp_path / "ran"
+    state = torch.load(_checkpoint(tmp_path / "good.pt"), weights_only=True)
+    evil = tmp_path / "evil.pt"
+    torch.save(state | {"history": [WritesAFile(marker)]}, evil)
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    with pytest.raises(CheckpointError, match=r"evil\.pt: refused: it holds a pickled Python object \(io\.open\)"):
+        Predictor(evil)
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(evil)]) == 2
+    _one_line_error(capsys, str(evil), "refused", "nbvtrain fit")
+    run = tmp_path / "run"  # the same as a run's last.pt: --resume refuses it too
+    run.mkdir()
+    (run / "config.yaml").write_text(to_yaml(TrainConfig(model="nbvnet-3-3")))
+    evil.rename(run / "last.pt")
+    assert main(["fit", "--resume", "--out", str(run), "--no-progress"]) == 2
+    _one_line_error(capsys, str(run / "last.pt"), "refused", "another --out")
+    assert not marker.exists()
+
+
+def _junk(kind: str, path: Path) -> Path:
+    if kind == "random bytes":
+        path.write_bytes(np.random.default_rng(0).bytes(5000))
+    elif kind == "text":
+        path.write_text("model: nbvnet-4-5\nepochs: 600\n")
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "a folder":
+        path.mkdir()
+    elif kind == "a zip":
+        import zipfile
+        with zipfile.ZipFile(path, "w") as archive:
+            archive.writestr("data.pkl", b"not a pickle")
+    elif kind == "a tensor":
+        torch.save(torch.zeros(3), path)
+    elif kind == "no weights":
+        torch.save({"model": "nbvnet-3-3", "epoch": 1, "config": {}}, path)
+    elif kind == "unknown model":
+        state = torch.load(_checkpoint(path), weights_only=True)
+        torch.save(state | {"model": "resnet-50"}, path)
+    elif kind == "other weights":  # nbvnet-3-5's weights under nbvnet-3-3's name
+        state = torch.load(_checkpoint(path, "nbvnet-3-5"), weights_only=True)
+        torch.save(state | {"model": "nbvnet-3-3"}, path)
+    return path  # "missing": nothing written
+
+
+JUNK = ["missing", "random bytes", "text", "empty", "a folder", "a zip", "a tensor", "no weights", "unknown model",
+        "other weights"]
+
+
+@pytest.mark.parametrize("kind", JUNK)
+def test_anything_but_a_checkpoint_is_one_line_exit_2(kind, tmp_path, capsys):
+    junk = _junk(kind, tmp_path / "junk.pt")
+    with pytest.raises(CheckpointError, match=r"junk\.pt: .*; pass a checkpoint written by nbvtrain fit"):
+        Predictor(junk)
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(junk)]) == 2
+    _one_line_error(capsys, f"nbvtrain predict: error: {junk}: ", "nbvtrain fit")
+
+
+@pytest.mark.parametrize("kind", ["random bytes", "empty", "no weights", "other weights"])
+def test_evaluate_and_resume_refuse_a_bad_checkpoint_in_one_line(kind, tmp_path, capsys):
+    junk = _junk(kind, tmp_path / "junk.pt")
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(meshes / "box.stl")
+    assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(junk), "--planners", "regression",
+                 "--out", str(tmp_path / "eval")]) == 2
+    _one_line_error(capsys, f"nbvtrain evaluate: error: {junk}: ")
+    assert not (tmp_path / "eval").exists()
+
+    run = tmp_path / "run"
+    run.mkdir()
+    config = to_yaml(TrainConfig(model="nbvnet-3-3"))
+    (run / "config.yaml").write_text(config)
+    if kind == "other weights":  # a run of nbvnet-3-3 whose last.pt holds nbvnet-3-5's weights
+        state = torch.load(_checkpoint(tmp_path / "other.pt", "nbvnet-3-5"), weights_only=True)
+        torch.save(state | {"model": "nbvnet-3-3", "config": yaml.safe_load(config)}, run / "last.pt")
+    else:
+        junk.rename(run / "last.pt")
+    before = {path.name: path.read_bytes() for path in run.iterdir()}
+    assert main(["fit", "--resume", "--epochs", "5", "--out", str(run), "--no-progress"]) == 2
+    _one_line_error(capsys, f"nbvtrain fit: error: {run / 'last.pt'}: ", "another --out")
+    assert {path.name: path.read_bytes() for path in run.iterdir()} == before  # not even config.yaml rewritten
+
+
+def test_a_device_torch_lacks_is_one_line(tmp_path, capsys):
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(checkpoint), "--device", "gpu7"]) == 2
+    _one_line_error(capsys, "device 'gpu7': ", "use cpu")
+
+
+def test_load_checkpoint_is_the_one_loader(tmp_path):
+    """Predictor, evaluate's planners and fit --resume all read through load_checkpoint."""
+    for module in ("predict", "train", "planners", "evaluate", "cli"):
+        assert "torch.load(" not in (ROOT / "nbvtrain" / f"{module}.py").read_text()
+    state = load_checkpoint(_checkpoint(tmp_path / "best.pt"))
+    assert state["model"] == "nbvnet-3-3" and state["epoch"] == 0
