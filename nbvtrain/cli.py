@@ -54,7 +54,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
-    from nbvtrain.predict import Predictor, prediction_json
+    from nbvtrain.predict import GridError, Predictor, prediction_json
 
     predictor = Predictor(args.checkpoint, device=args.device, k=args.k, radius=args.radius)
     if args.grid.suffix == ".npy":
@@ -62,6 +62,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
             grid = np.load(args.grid)
         except (OSError, ValueError) as error:
             raise ShardError(f"{args.grid}: not a readable .npy grid ({error})") from None
+        if not isinstance(grid, np.ndarray):
+            raise ShardError(f"{args.grid}: holds several arrays (.npz), not one grid: np.save one 32^3 grid")
         if grid.size != 32 ** 3:
             raise ShardError(f"{args.grid}: holds {grid.size} values, a grid has 32^3 = 32768")
         grid, source = grid.reshape(32, 32, 32), str(args.grid)
@@ -70,7 +72,10 @@ def cmd_predict(args: argparse.Namespace) -> int:
             if not 0 <= args.index < len(shard):
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
-    (prediction,) = predictor.predict(grid)
+    try:
+        (prediction,) = predictor.predict(grid)
+    except GridError as error:
+        raise ShardError(f"{source}: {error}") from None
     print(prediction_json(prediction, predictor, source))
     return 0
 

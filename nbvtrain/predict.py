@@ -27,7 +27,7 @@ import torch
 from nbvdata.config import ConfigError
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import NBVNet, class_positions
+from nbvtrain.models import GRID_SIZE, NBVNet, class_positions
 
 
 @dataclass(frozen=True)
@@ -63,10 +63,9 @@ class Predictor:
         self._classes = torch.from_numpy(class_positions()).float().to(self.device)
 
     def outputs(self, grids: np.ndarray) -> np.ndarray:
-        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale)."""
-        grids = np.asarray(grids, dtype=np.float32)
-        if grids.ndim == 3:
-            grids = grids[None]
+        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale).
+        GridError (a ValueError) for anything else (see ``check_grids``)."""
+        grids = check_grids(grids)
         with torch.inference_mode():
             output = self._features(torch.from_numpy(grids).to(self.device).unsqueeze(1))
             output = self.model.head(output)
@@ -75,7 +74,8 @@ class Predictor:
         return output.cpu().numpy().astype(np.float64)
 
     def predict(self, grids: np.ndarray) -> list[NBVPrediction]:
-        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions."""
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions.
+        GridError (a ValueError) for anything else (see ``check_grids``)."""
         predictions = []
         for raw in self.outputs(grids):
             norm = np.linalg.norm(raw)
@@ -83,6 +83,34 @@ class Predictor:
             pose = Pose.look_at(direction * self.radius * self.k)
             predictions.append(NBVPrediction(raw, direction, pose))
         return predictions
+
+
+class GridError(ValueError):
+    """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
+
+
+ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
+
+
+def check_grids(grids: np.ndarray) -> np.ndarray:
+    """(n, n, n) or (B, n, n, n) float probabilities in [0, 1], n = 32 -> (B, n, n, n) float32.
+
+    GridError for another shape, an integer or boolean dtype, NaN or values outside [0, 1]."""
+    array = np.asarray(grids)
+    shape = (GRID_SIZE,) * 3
+    if array.ndim not in (3, 4) or array.shape[-3:] != shape:
+        raise GridError(f"grid has shape {array.shape}, expected {shape} or (B, {', '.join(map(str, shape))})")
+    if array.dtype.kind != "f":
+        raise GridError(f"grid has dtype {array.dtype}, expected {ENCODING}")
+    if array.size:
+        nan = np.isnan(array)
+        if nan.any():
+            raise GridError(f"grid holds {int(nan.sum())} NaN values of {array.size}: expected {ENCODING}")
+        low, high = float(array.min()), float(array.max())
+        if low < 0 or high > 1:
+            raise GridError(f"grid holds values in [{low:g}, {high:g}], outside [0, 1]: expected {ENCODING}")
+    array = array.astype(np.float32, copy=False)
+    return array[None] if array.ndim == 3 else array
 
 
 def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:

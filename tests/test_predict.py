@@ -1,5 +1,6 @@
 """nbvtrain predict on untrusted input: checkpoints load as plain data only (a pickled object is
-refused and runs nothing), and anything else than a checkpoint is a one-line error."""
+refused and runs nothing), and anything else than a checkpoint or a grid in the authors'
+encoding is a one-line error."""
 
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from nbvtrain.checkpoint import CheckpointError, load_checkpoint
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
-from nbvtrain.predict import Predictor
+from nbvtrain.predict import GridError, Predictor
 from nbvtrain.train import _save
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,3 +154,34 @@ def test_load_checkpoint_is_the_one_loader(tmp_path):
         assert "torch.load(" not in (ROOT / "nbvtrain" / f"{module}.py").read_text()
     state = load_checkpoint(_checkpoint(tmp_path / "best.pt"))
     assert state["model"] == "nbvnet-3-3" and state["epoch"] == 0
+
+
+BAD_GRIDS = {
+    "all NaN": (np.full((32, 32, 32), np.nan, dtype=np.float32), r"holds 32768 NaN values"),
+    "one NaN": (np.where(np.arange(32 ** 3) == 5, np.nan, 0.5).reshape(32, 32, 32), r"holds 1 NaN values"),
+    "7.0": (np.full((32, 32, 32), 7.0), r"values in \[7, 7\], outside \[0, 1\]"),
+    "negative": (np.full((32, 32, 32), -0.1), r"values in \[-0.1, -0.1\], outside \[0, 1\]"),
+    "integers": (np.ones((32, 32, 32), dtype=np.int64), r"dtype int64, expected float occupancy probabilities"),
+    "booleans": (np.ones((32, 32, 32), dtype=bool), r"dtype bool, expected float"),
+    "16^3": (np.full((16, 16, 16), 0.5), r"shape \(16, 16, 16\), expected \(32, 32, 32\) or \(B, 32, 32, 32\)"),
+    "flat": (np.full(32 ** 3, 0.5), r"shape \(32768,\)"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_GRIDS)
+def test_grids_outside_the_authors_encoding_are_refused(case, tmp_path, capsys):
+    grid, message = BAD_GRIDS[case]
+    predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
+    with pytest.raises(GridError, match=message):  # a ValueError
+        predictor.predict(grid)
+    if grid.ndim == 3:  # (the command line takes a flat row of 32^3 values too, as the authors store them)
+        np.save(tmp_path / "grid.npy", grid)
+        assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(tmp_path / "best.pt")]) == 2
+        _one_line_error(capsys, f"nbvtrain predict: error: {tmp_path / 'grid.npy'}: ")
+    assert isinstance(GridError("x"), ValueError)
+
+
+def test_the_edges_of_the_encoding_are_accepted(tmp_path):
+    predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
+    grids = np.stack([np.zeros((32, 32, 32)), np.ones((32, 32, 32)), np.full((32, 32, 32), 0.5)]).astype(np.float16)
+    assert len(predictor.predict(grids)) == 3
