@@ -1,7 +1,10 @@
 """nbvtrain predict on untrusted input: checkpoints load as plain data only (a pickled object is
-refused and runs nothing), and anything else than a checkpoint or a grid in the authors'
-encoding is a one-line error."""
+refused and runs nothing), anything else than a checkpoint or a grid in the authors' encoding is
+a one-line error, and inference builds no deprecated torch.jit modules."""
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -185,3 +188,22 @@ def test_the_edges_of_the_encoding_are_accepted(tmp_path):
     predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
     grids = np.stack([np.zeros((32, 32, 32)), np.ones((32, 32, 32)), np.full((32, 32, 32), 0.5)]).astype(np.float16)
     assert len(predictor.predict(grids)) == 3
+
+
+def test_predict_builds_no_torch_jit_and_warns_nothing(tmp_path):
+    """torch.utils.mkldnn wraps each convolution in a deprecated torch.jit script module; the
+    oneDNN path calls the same convolution directly, with the same outputs."""
+    checkpoint = _checkpoint(tmp_path / "best.pt", "nbvnet-4-5")
+    grid = np.random.default_rng(0).choice(np.array([0.4, 0.5, 0.7], dtype=np.float32), size=(32, 32, 32))
+    np.save(tmp_path / "grid.npy", grid)
+    script = ("import sys; from nbvtrain.cli import main; code = main(sys.argv[1:]); "
+              "assert 'torch.utils.mkldnn' not in sys.modules, 'torch.jit modules built'; sys.exit(code)")
+    done = subprocess.run([sys.executable, "-W", "error", "-c", script, "predict", str(tmp_path / "grid.npy"),
+                           "--checkpoint", str(checkpoint)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    predictor = Predictor(checkpoint)
+    assert torch.backends.mkldnn.is_available() == (predictor._features is not predictor.model.features)
+    with torch.inference_mode():
+        grids = torch.from_numpy(grid)[None, None]
+        torch.testing.assert_close(predictor._features(grids), predictor.model.features(grids), atol=1e-6, rtol=0)
