@@ -1,5 +1,5 @@
-"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, baselines,
-closed-loop evaluation of planners.
+"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, score the
+baselines and evaluate planners in closed-loop reconstructions.
 
 Expected user errors (a bad setting, a missing or broken shard or checkpoint) print one line
 naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
@@ -146,7 +146,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvtrain", description=__doc__.splitlines()[0])
+    summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
+    parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 

@@ -109,6 +109,13 @@ def test_bad_input_leaves_no_run_folder_behind(shards, tmp_path, capsys):
     assert "a file, not a folder" in capsys.readouterr().err and (tmp_path / "file.txt").read_text() == "keep me"
 
 
+def test_help_ends_in_whole_sentences(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    description = capsys.readouterr().out.split("\n\n")[1]
+    assert description.rstrip().endswith(".") and "closed-loop" in description, description
+
+
 def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
     run = tmp_path / "run"
     process = subprocess.Popen([sys.executable, "-m", "nbvtrain", "fit", str(shards), "--epochs", "100000",
