@@ -206,6 +206,19 @@ def test_verify_by_content_accepts_other_bytes_with_the_same_arrays(shards, publ
     assert not [line for line in lines if same.name in line]
 
 
+def test_a_complete_smaller_shard_is_not_called_truncated(shards, published, tmp_path, capsys):
+    copy = _copy(shards, tmp_path / "copy")
+    files = sorted(copy.glob("*.h5"), key=lambda path: path.stat().st_size)
+    smallest, largest = files[0], files[-1]
+    size, listed = smallest.stat().st_size, largest.stat().st_size
+    assert size < listed
+    shutil.copy(smallest, largest)  # a whole, readable shard, only not the one published
+    assert nbvdata(["verify", str(published), "--root", str(copy)]) == 1
+    out = capsys.readouterr().out
+    assert f"changed: {largest.name}: size differs: {size:,} bytes, the manifest lists {listed:,}" in out
+    assert "truncated" not in out
+
+
 def test_published_versions_are_immutable(shards, tmp_path, capsys):
     manifests = tmp_path / "manifests"
     part = tmp_path / "part"
@@ -281,6 +294,7 @@ def test_imported_shards_publish_with_the_random_split_only(tmp_path, rng, capsy
     manifest = str(tmp_path / "manifests" / "legacy-1.0.0.json")
     assert nbvtrain(["fit", manifest, "--split", "mesh", "--out", str(tmp_path / "run"), *FAST]) == 2
     assert "no mesh split (the shards hold no mesh ids (imported data)): use --split random" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before the run folder is made
 
 
 def test_fit_trains_on_the_published_split_records_it_and_resumes_exactly(published, tmp_path):
@@ -308,4 +322,4 @@ def test_fit_refuses_a_tampered_version(shards, published, tmp_path, capsys):
     assert nbvtrain(["fit", str(published), "--root", str(copy), "--epochs", "1", "--out", str(run), *FAST]) == 2
     err = capsys.readouterr().err
     assert f"changed: {victim.name}: sha256 differs" in err and len(err.strip().splitlines()) == 1
-    assert not (run / "last.pt").exists()
+    assert not run.exists()
