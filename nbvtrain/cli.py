@@ -18,8 +18,9 @@ import numpy as np
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvtrain import __version__
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import MODELS
+
+INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
+                 "--index-url https://download.pytorch.org/whl/cpu)")
 
 FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
@@ -28,6 +29,7 @@ FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """Train a network; with --resume continue the run in --out."""
+    from nbvtrain.config import TrainConfig
     from nbvtrain.train import Interrupted, fit, load_run_config
 
     flags = {key: getattr(args, attr) for attr, key in FIT_FLAGS.items() if getattr(args, attr) is not None}
@@ -146,6 +148,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from nbvtrain.models import MODELS
+
     summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
     parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
@@ -217,6 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        import torch  # noqa: F401  (nbvtrain's one optional dependency: nbvdata runs without it)
+    except ImportError as error:
+        print(f"nbvtrain: error: nbvtrain needs PyTorch, which is not installed ({error}): {INSTALL_TORCH}",
+              file=sys.stderr)
+        return 2
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
