@@ -359,7 +359,7 @@ def test_fit_trains_on_the_published_split_records_it_and_resumes_exactly(publis
     assert data["split"]["test_meshes"] == json.loads(published.read_text())["splits"]["mesh"]["test"]["meshes"]
     assert nbvtrain(["fit", str(published), "--split", "mesh", "--epochs", "1", "--out", str(resumed), *FAST]) == 0
     assert nbvtrain(["fit", "--resume", "--epochs", "2", "--out", str(resumed), "--no-progress"]) == 0
-    a, b = (torch.load(run / "last.pt", weights_only=False)["state_dict"] for run in (straight, resumed))
+    a, b = (torch.load(run / "last.pt", weights_only=True)["state_dict"] for run in (straight, resumed))
     assert all(torch.equal(a[key], b[key]) for key in a)
 
 
