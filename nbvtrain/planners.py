@@ -181,6 +181,8 @@ class InfoGainPlanner(Planner):
             points = origin + (end - origin) / length * np.arange(0.0, length, step)[:, None]
             keys = np.floor(points / resolution).astype(np.int64) + n // 2
             keys = keys[((keys >= 0) & (keys < n)).all(axis=1)]
+            if not len(keys):
+                continue  # the ray misses the grid (the fitted cube is smaller than the frustum)
             keys = keys[np.concatenate([[True], (np.diff(keys, axis=0) != 0).any(axis=1)])]  # voxels in order
             met = 0
             for i, j, k in keys:

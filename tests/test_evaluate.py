@@ -209,7 +209,7 @@ def test_oracle_and_random_planners(scene, config):
 
 
 def test_information_gain_agrees_with_a_sampled_walk(scene, config):
-    planner = InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+    planner = InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                               config.oracle.min_overlap)
     state = Reconstruction(scene, None, np.random.default_rng(0))
     for view in (0, 30):
@@ -224,7 +224,7 @@ def test_information_gain_agrees_with_a_sampled_walk(scene, config):
         ends = np.ascontiguousarray(planner._ends[view:view + 1, rays])
         fast = np.zeros(ends.shape[:2])
         first = np.zeros(ends.shape[:2], dtype=np.int8)
-        _ray_information(planner._origins[view:view + 1], ends, probabilities, config.grid.resolution,
+        _ray_information(planner._origins[view:view + 1], ends, probabilities, config.scene_grid.resolution,
                          -(config.grid.size // 2), *planner._box, *planner.unknown, planner._scratch, fast, first)
         assert fast.sum() == pytest.approx(information, rel=0.01)  # sampling may miss a clipped corner
         assert information > 0
@@ -233,7 +233,7 @@ def test_information_gain_agrees_with_a_sampled_walk(scene, config):
 
 
 def test_information_gain_properties(config):
-    planner = InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+    planner = InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                               config.oracle.min_overlap)
     n = config.grid.size
     unknown = planner.scores(np.full((n, n, n), 0.5, dtype=np.float32))

@@ -54,7 +54,7 @@ def test_palette_recovers_the_grid_probabilities_exactly(rng):
     config = load_config(SimConfig, None, ["sensor.width=88", "sensor.height=72"])
     obj = builtin_object("mug", config.mesh)
     scanner, views = MeshScanner(obj.mesh, config.sensor), view_sphere(config.views)
-    grid, palette = OccupancyGrid(config.grid), GridPalette()
+    grid, palette = OccupancyGrid(config.scene_grid), GridPalette()
     for view in (0, 200, 400, 200):
         grid.integrate(scanner.scan(views[view]), config.sensor.far)
         codes = palette.encode(grid.log_odds)
