@@ -23,7 +23,6 @@ import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.config import SimConfig  # noqa: E402
-from nbvdata.manifest import write_atomic  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
@@ -42,6 +41,16 @@ def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> P
     card = manifest_path.with_suffix(".md")
     write_atomic(card, card_text(content, summary, present, manifest_path))
     return card
+
+
+def write_atomic(path: Path, data: str | bytes) -> None:
+    """Write ``path`` whole or not at all: to a temporary name, then rename."""
+    partial = path.with_name(path.name + ".partial")
+    if isinstance(data, str):
+        partial.write_text(data, encoding="utf-8")
+    else:
+        partial.write_bytes(data)
+    os.replace(partial, path)
 
 
 def plot_label_spread(views: np.ndarray, counts: Counter, out: Path, title: str) -> None:
