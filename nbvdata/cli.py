@@ -23,6 +23,7 @@ from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
+from nbvdata.text import plural
 
 
 class UsageError(Exception):
@@ -52,7 +53,8 @@ def _parse_indices(text: str, count: int) -> list[int]:
         raise UsageError(f"--views {text!r}: expected comma-separated view indices, e.g. --views 0,120,340") from None
     bad = [i for i in indices if not 0 <= i < count]
     if bad:
-        raise UsageError(f"--views: indices {bad} out of range; the view set has {count} views (0..{count - 1})")
+        raise UsageError(f"--views: indices {bad} out of range; the view set has {plural(count, 'view')} "
+                         f"(0..{count - 1})")
     return indices
 
 
@@ -68,7 +70,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     grid = scene.new_grid()
     views = rng.choice(len(scene.views), size=min(args.scans, len(scene.views)), replace=False)
     covered = np.zeros(len(scene.coverage.points), dtype=bool)
-    print(f"{obj.source}: {len(obj.mesh.faces)} faces, {len(scene.views)} candidate views, "
+    print(f"{obj.source}: {plural(len(obj.mesh.faces), 'face')}, {plural(len(scene.views), 'candidate view')}, "
           f"{int(scene.coverage.observable.sum())}/{len(scene.coverage.points)} reference points observable")
     for step, view in enumerate(views, start=1):
         start = time.perf_counter()
@@ -82,7 +84,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
               f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
     out = render_state(grid.probabilities(), config.grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
-                       title=f"{obj.source}: {len(views)} scans")
+                       title=f"{obj.source}: {plural(len(views), 'scan')}")
     print(f"wrote {out}")
     return 0
 
@@ -102,8 +104,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
         sources, failures = mesh_sources(args.meshes)
     units = len(sources) * -(-config.episode.runs_per_mesh // (config.generate.runs_per_shard
                                                                or config.episode.runs_per_mesh))
-    print(f"nbvdata generate: {len(sources)} meshes x {config.episode.runs_per_mesh} runs "
-          f"({units} shards) -> {args.out}")
+    print(f"nbvdata generate: {plural(len(sources), 'mesh')} x {plural(config.episode.runs_per_mesh, 'run')} "
+          f"({plural(units, 'shard')}) -> {args.out}")
     try:
         report = generate(sources, args.out, config, failures, show_progress=args.progress)
     except KeyboardInterrupt:
@@ -111,11 +113,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
               f"again to continue", file=sys.stderr)
         return 130
     rate = report.samples / report.seconds if report.seconds else 0.0
-    print(f"wrote {report.samples} samples in {len(report.done)} shards to {args.out} in "
-          f"{report.seconds:.1f} s ({rate:.1f} samples/s)"
-          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+    print(f"wrote {plural(report.samples, 'sample')} in {plural(len(report.done), 'shard')} to {args.out} in "
+          f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped))
     if report.failures:
-        print(f"nbvdata generate: {len(report.failures)} meshes failed, listed in "
+        print(f"nbvdata generate: {plural(len(report.failures), 'mesh')} failed, listed in "
               f"{args.out / FAILURES_FILE}", file=sys.stderr)
         return 1
     return 0
@@ -138,11 +139,17 @@ def cmd_import_legacy(args: argparse.Namespace) -> int:
         return 130
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     rate = report.rows / report.seconds if report.seconds else 0.0
-    print(f"imported {report.rows} rows into {len(report.written)} shards in {args.out} "
-          f"({len(report.run_lengths)} runs) in {report.seconds:.1f} s ({rate:.0f} rows/s), "
-          f"peak memory {peak:.0f} MiB"
-          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+    print(f"imported {plural(report.rows, 'row')} into {plural(len(report.written), 'shard')} in {args.out} "
+          f"({plural(len(report.run_lengths), 'run')}) in {report.seconds:.1f} s ({rate:.0f} rows/s), "
+          f"peak memory {peak:.0f} MiB" + _already_there(report.skipped))
     return 0
+
+
+def _already_there(skipped: list) -> str:
+    """"; 3 shards were already there" after a resumed job's report, or nothing."""
+    if not skipped:
+        return ""
+    return f"; {plural(len(skipped), 'shard')} {'was' if len(skipped) == 1 else 'were'} already there"
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
@@ -167,7 +174,8 @@ def cmd_publish(args: argparse.Namespace) -> int:
         print(f"{label}: already published, identical ({result.path}); nothing written")
         return 0
     content, totals = result.content, result.content["totals"]
-    print(f"published {label}: {totals['shards']} shards, {totals['samples']} samples, {totals['meshes']} meshes, "
+    print(f"published {label}: {plural(totals['shards'], 'shard')}, {plural(totals['samples'], 'sample')}, "
+          f"{plural(totals['meshes'], 'mesh')}, "
           f"{totals['bytes'] / 2 ** 20:.1f} MB, in {time.perf_counter() - started:.1f} s")
     print(f"  manifest {result.path}")
     print(f"  card     {result.path.with_suffix('.md')} (+ {result.path.with_suffix('.png').name})")
@@ -175,7 +183,7 @@ def cmd_publish(args: argparse.Namespace) -> int:
         print(f"  {kind} split: {_split_counts(content['splits'][kind])}")
     unrecorded = sum(mesh["license"] == NOT_RECORDED for mesh in content["meshes"])
     if unrecorded:
-        print(f"nbvdata publish: the licenses of {unrecorded} meshes are not recorded: pass --meshes DIR, the "
+        print(f"nbvdata publish: no license recorded for {plural(unrecorded, 'mesh')}: pass --meshes DIR, the "
               "folder whose MESHES.tsv lists them, with the next version", file=sys.stderr)
     return 0
 
@@ -189,7 +197,7 @@ def _split_counts(split: dict) -> str:
         if part in split:
             meshes = split[part].get("meshes")
             counts.append(f"{part} {split[part]['samples']}" if meshes is None else
-                          f"{part} {split[part]['samples']} ({len(meshes)} mesh{'' if len(meshes) == 1 else 'es'})")
+                          f"{part} {split[part]['samples']} ({plural(len(meshes), 'mesh')})")
     return ", ".join(counts)
 
 
@@ -199,7 +207,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
     result = verify(args.manifest, args.root)
     published, totals = result.published, result.published.content["totals"]
-    print(f"{args.manifest}: {published.label}, {totals['shards']} shards, {totals['samples']} samples, "
+    print(f"{args.manifest}: {published.label}, {plural(totals['shards'], 'shard')}, "
+          f"{plural(totals['samples'], 'sample')}, "
           f"in {os.path.normpath(published.root)}")
     for problem in result.problems:
         print(problem)
@@ -207,7 +216,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
         kinds = {problem.kind for problem in result.problems}
         fixes = (["restore the files named from a good copy"] if kinds - {"extra"} else []) + (
             ["move the extra ones away (or publish them as a new version)"] if "extra" in kinds else [])
-        print(f"{len(result.problems)} problems ({result.seconds:.1f} s): this is not the published "
+        print(f"{plural(len(result.problems), 'problem')} ({result.seconds:.1f} s): this is not the published "
               f"{published.label}; {' and '.join(fixes)}")
         return 1
     print(f"ok: every shard is there, unchanged, with the samples listed; no others ({result.seconds:.1f} s)")
@@ -254,7 +263,8 @@ def _show_sample(args: argparse.Namespace) -> int:
 
     with Shard(args.grid) as shard:
         if not 0 <= args.index < len(shard):
-            raise UsageError(f"--index {args.index}: {args.grid} holds {len(shard)} samples (0..{len(shard) - 1})")
+            raise UsageError(f"--index {args.index}: {args.grid} holds {plural(len(shard), 'sample')} "
+                             f"(0..{len(shard) - 1})")
         i = args.index
         probabilities = shard.grids(i)
         positions = shard["view_positions"]
@@ -289,7 +299,7 @@ def _load_grid_file(path: Path, size: int) -> np.ndarray:
     except Exception as error:
         raise UsageError(f"{path}: not a readable .npy array ({type(error).__name__})") from None
     if array.size != size ** 3:
-        raise UsageError(f"{path}: holds {array.size} values, a {size}^3 grid needs {size ** 3}")
+        raise UsageError(f"{path}: holds {plural(array.size, 'value')}, a {size}^3 grid needs {size ** 3}")
     return array.reshape(size, size, size).astype(np.float32)
 
 

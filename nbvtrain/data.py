@@ -15,6 +15,7 @@ import torch
 
 from nbvdata.manifest import Published, random_split
 from nbvdata.shards import Shard, ShardError
+from nbvdata.text import plural
 
 
 class InMemoryGrids:
@@ -114,7 +115,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
     total = int(counts.sum())
     if total == 0:
-        raise ShardError(f"the {len(paths)} shards hold no samples: generate more runs or other meshes")
+        raise ShardError(f"no samples in the {plural(len(paths), 'shard')} given: generate more runs or other meshes")
 
     nbytes = total * size ** 3 * np.dtype(code_type).itemsize
     if nbytes <= memory_limit_gb * 2 ** 30:

@@ -36,6 +36,7 @@ from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
+from nbvdata.text import plural
 from nbvtrain.config import TrainConfig
 from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
 from nbvtrain.metrics import evaluate, format_ratio
@@ -93,7 +94,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     checkpoint = _start(out, config, resume)
     shards, published = _sources(list(shards), manifest, root, out, resume)
     if published is not None:
-        log(f"{published.label}: {len(shards)} shards verified against {published.path} "
+        log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     if config.threads:
         torch.set_num_threads(config.threads)
@@ -118,7 +119,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             optimizer.load_state_dict(checkpoint["optimizer"])
             history = checkpoint["history"]
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
-            f"{len(val_idx)} validation samples ({split['kind']} split) from {len(data.paths)} shards")
+            f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
+            f"{plural(len(data.paths), 'shard')}")
         _train(model, optimizer, data, train_idx, val_idx, config, device, out, history, progress, log)
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
@@ -177,7 +179,7 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
     loss_fn = nn.MSELoss() if model.task == "regression" else nn.CrossEntropyLoss()
     first = len(history) + 1
     if first > config.epochs:
-        log(f"{out} already has {len(history)} epochs (epochs={config.epochs}): nothing to do")
+        log(f"{out} already has {plural(len(history), 'epoch')} (epochs={config.epochs}): nothing to do")
     best = min((row["val_loss"] for row in history), default=math.inf)
     epoch = first - 1
     try:

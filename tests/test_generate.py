@@ -131,7 +131,7 @@ def test_a_killed_run_resumes_without_losing_or_repeating_a_unit(tmp_path):
 
     result = subprocess.run(_command(killed, "--no-progress"), capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert f"{len(written)} shards were already there" in result.stdout
+    assert f"; {len(written)} shard" in result.stdout and "already there" in result.stdout
     assert sorted(p.name for p in killed.glob("*.h5")) == total
     assert not list(killed.glob("*.partial"))
     assert all((killed / name).stat().st_mtime_ns == mtime for name, mtime in before.items())  # not rewritten
@@ -173,12 +173,13 @@ def test_bad_meshes_are_reported_and_the_others_go_on(tmp_path, capsys):
     assert len(shards) == 1 and len(Shard(shards[0])) > 0
 
     assert main(argv) == 1  # still failing, and the good shard is kept, not redone
-    assert "1 shards were already there" in capsys.readouterr().out
+    assert "; 1 shard was already there" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("setup, argv, message", [
     ("empty", ["--meshes", "{meshes}"], "no mesh files"),
-    ("missing", ["--meshes", "{tmp}/nowhere"], "not a folder"),
+    ("missing", ["--meshes", "{tmp}/nowhere"], "nowhere: no such file or folder; pass a folder of mesh files, one "
+                "mesh file (.obj, .ply, .off, .stl, .glb, .gltf) or a .txt list"),
     ("done", ["--seed", "5"], "episode.seed"),
     ("none", ["--set", "episode.max_scan=3"], "did you mean 'episode.max_scans'"),
 ])

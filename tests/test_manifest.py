@@ -154,7 +154,7 @@ def test_verify_names_each_tampered_shard(shards, published, tmp_path, capsys, k
     named = "zzz-extra.h5" if kind == "extra" else victim.name
     assert [line for line in lines if line.startswith(f"{kind}: ")] == [line for line in lines if named in line]
     assert len([line for line in lines if line.startswith(f"{kind}: {named}")]) == 1
-    assert lines[-1].startswith("1 problems")
+    assert lines[-1].startswith("1 problem (")
 
 
 def test_verify_names_every_problem_at_once(shards, published, tmp_path, capsys):
