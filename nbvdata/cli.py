@@ -153,13 +153,17 @@ def _already_there(skipped: list) -> str:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    """Print samples per mesh, coverage statistics and the spread of labels over the views."""
+    """Print samples per mesh, coverage statistics and the spread of labels over the views; an
+    unreadable shard is an error, reported before anything is printed."""
     from nbvdata.summary import format_summary, summarise
 
-    paths = shard_files(args.shards)
-    summary = summarise(paths)
+    summary = summarise(shard_files(args.shards))
+    if summary.problems:
+        others = len(summary.problems) - 1
+        raise ShardError(summary.problems[0] + (f" (and {plural(others, 'other unreadable shard')})"
+                                                if others else ""))
     print(format_summary(summary, top=args.top))
-    return 1 if summary.problems else 0
+    return 0
 
 
 def cmd_publish(args: argparse.Namespace) -> int:

@@ -26,6 +26,8 @@ def test_show_renders_a_saved_grid(tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
+    (["generate", "--meshes", "nope.obj"], "nope.obj: no such file or folder; pass a folder of mesh files, one mesh "
+     "file (.obj, .ply, .off, .stl, .glb, .gltf) or a .txt list of mesh files"),
     (["demo", "--set", "views.cont=3"], "did you mean 'views.count'"),
     (["demo", "--mesh", "missing.obj"], "no such file"),
     (["show", "nothing.npy"], "no such file"),
@@ -35,3 +37,16 @@ def test_user_errors_are_one_line_and_exit_2(argv, message, capsys, tmp_path):
     assert main(argv + ["--out", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+def test_inspect_reports_unreadable_shards_before_printing_anything(tmp_path, capsys):
+    for name in ("bad.h5", "worse.h5"):
+        (tmp_path / name).write_text("not a shard\n")
+    assert main(["inspect", str(tmp_path / "bad.h5")]) == 2
+    printed = capsys.readouterr()
+    assert printed.out == ""  # no empty table
+    assert printed.err.startswith(f"nbvdata inspect: error: {tmp_path / 'bad.h5'}: not a readable HDF5 file")
+    assert len(printed.err.splitlines()) == 1
+    assert main(["inspect", str(tmp_path)]) == 2
+    printed = capsys.readouterr()
+    assert printed.out == "" and printed.err.strip().endswith("(and 1 other unreadable shard)")
