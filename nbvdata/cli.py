@@ -26,6 +26,27 @@ from nbvdata.shards import ShardError, shard_files
 from nbvdata.text import plural
 
 
+DESCRIPTION = """\
+nbvdata makes datasets for learned next-best-view (NBV) planning: a simulated range sensor
+scans a mesh from candidate views on a sphere, each partial reconstruction (an occupancy grid,
+32^3 by default) is labelled with the view an exhaustive search finds best, and the labelled
+states are written to HDF5 shards.
+
+The usual workflow: generate -> inspect -> publish -> verify, then `nbvtrain fit` trains on the
+published version."""
+
+EPILOG = """\
+example (the 6 built-in shapes, 20 runs each: 839 labelled states, 6 shards):
+  nbvdata generate --out nbv_dataset
+  nbvdata inspect nbv_dataset
+  nbvdata publish nbv_dataset --name my-shapes --version 1.0.0
+  nbvdata verify manifests/my-shapes-1.0.0.json
+  nbvtrain fit manifests/my-shapes-1.0.0.json --split mesh --epochs 2
+
+Your meshes: nbvdata generate --meshes DIR (obj, ply, off, stl, glb, gltf; searched recursively).
+'nbvdata COMMAND --help' lists a command's options."""
+
+
 class UsageError(Exception):
     """A user error the command reports in one line."""
 
@@ -308,18 +329,11 @@ def _load_grid_file(path: Path, size: int) -> np.ndarray:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvdata", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"nbvdata {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
-    _add_object_options(demo)
-    _add_config_options(demo)
-    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
-    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
-    demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
-    demo.set_defaults(func=cmd_demo)
+    sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
 
     gen = sub.add_parser("generate", help="simulate labelled reconstructions of meshes into HDF5 shards")
     gen.add_argument("--meshes", type=Path, help="folder of mesh files (searched recursively), one mesh "
@@ -335,17 +349,6 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                      help="show a progress bar (default: on a terminal)")
     gen.set_defaults(func=cmd_generate)
-
-    legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
-    legacy.add_argument("--volumes", type=Path, required=True,
-                        help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
-    legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
-    legacy.add_argument("--out", type=Path, required=True, help="output folder")
-    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
-    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
-    legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                        help="show a progress bar (default: on a terminal)")
-    legacy.set_defaults(func=cmd_import_legacy)
 
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
@@ -388,6 +391,25 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--seed", type=int, default=0, help="seed for sensor noise")
     show.add_argument("--out", type=Path, default=Path("nbv_show.png"), help="PNG to write")
     show.set_defaults(func=cmd_show)
+
+    demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
+    _add_object_options(demo)
+    _add_config_options(demo)
+    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
+    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
+    demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
+    demo.set_defaults(func=cmd_demo)
+
+    legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
+    legacy.add_argument("--volumes", type=Path, required=True,
+                        help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
+    legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
+    legacy.add_argument("--out", type=Path, required=True, help="output folder")
+    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
+    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
+    legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show a progress bar (default: on a terminal)")
+    legacy.set_defaults(func=cmd_import_legacy)
     return parser
 
 

@@ -50,3 +50,16 @@ def test_inspect_reports_unreadable_shards_before_printing_anything(tmp_path, ca
     assert main(["inspect", str(tmp_path)]) == 2
     printed = capsys.readouterr()
     assert printed.out == "" and printed.err.strip().endswith("(and 1 other unreadable shard)")
+
+
+def test_help_describes_the_workflow_and_every_command(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    assert "generate -> inspect -> publish -> verify" in text and "nbvtrain fit" in text
+    listed = text.split("commands:", 1)[1]
+    for command in ("generate", "inspect", "publish", "verify", "show", "demo", "import-legacy"):
+        assert f"\n    {command} " in listed or f"\n    {command}\n" in listed, command
+    example = text.split("example", 1)[1]
+    assert "nbvdata generate --out nbv_dataset" in example and "nbvdata verify manifests/" in example
