@@ -105,7 +105,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
               f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
     out = render_state(grid.probabilities(), config.grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
-                       title=f"{obj.source}: {plural(len(views), 'scan')}")
+                       title=f"{obj.source}: {plural(len(views), 'scan')}", labels=("last scan", "earlier scans"))
     print(f"wrote {out}")
     return 0
 
@@ -275,7 +275,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     highlight = None
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views))[0]
-    out = render_state(probabilities, config.grid.extent, args.out, views, highlight=highlight, title=title)
+    out = render_state(probabilities, config.grid.extent, args.out, views, highlight=highlight, title=title,
+                       labels=("--highlight view", ""))
     print(f"wrote {out}")
     return 0
 

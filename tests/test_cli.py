@@ -6,13 +6,19 @@ import pytest
 from nbvdata.cli import main
 
 
-def test_demo_writes_a_png(tmp_path, capsys):
+def test_demo_writes_a_png(tmp_path, capsys, monkeypatch):
+    import nbvdata.render
+
+    drawn = {}
+    render_state = nbvdata.render.render_state
+    monkeypatch.setattr(nbvdata.render, "render_state", lambda *a, **k: drawn.update(k) or render_state(*a, **k))
     out = tmp_path / "demo.png"
     assert main(["demo", "--scans", "2", "--set", "views.count=50", "--set", "coverage.points=2000",
                  "--out", str(out)]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     printed = capsys.readouterr().out
     assert "scan 2:" in printed and "coverage" in printed
+    assert drawn["labels"] == ("last scan", "earlier scans")  # the legend: red is not an NBV here
 
 
 def test_show_renders_a_saved_grid(tmp_path):
