@@ -88,7 +88,7 @@ def main() -> None:
         model = build_model("nbvnet-4-5")
         _save(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(), [], 0, config.views.radius)
         regression = LearnedPlanner(checkpoint, config.views.radius, "regression")
-    infogain = InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+    infogain = InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                config.oracle.min_overlap)
     planners = {"regression": (regression, 5.0), "infogain": (infogain, 300.0),
                 "oracle": (OraclePlanner(scene.views, config.oracle.min_overlap), None)}

@@ -59,13 +59,13 @@ def main() -> None:
     rng = np.random.default_rng(0)
     # warm-up: compile the kernels before timing
     warm = MeshScanner(builtin_object("mug").mesh, config.sensor)
-    OccupancyGrid(config.grid).integrate(warm.scan(views[0]), config.sensor.far)
+    OccupancyGrid(config.scene_grid).integrate(warm.scan(views[0]), config.sensor.far)
 
     print(f"{'mesh':42s} {'faces':>7s} {'cast':>7s} {'integr':>7s} {'total':>7s} {'octomap':>8s} {'speedup':>8s}  (ms, median of {args.scans})")
     totals, octomaps = [], []
     for obj in _objects(config):
         scanner = MeshScanner(obj.mesh, config.sensor)
-        grid = OccupancyGrid(config.grid)
+        grid = OccupancyGrid(config.scene_grid)
         tree = pyoctomap.OcTree(grid.resolution) if pyoctomap else None
         cast, integrate, total, octomap, scans = [], [], [], [], []
         for view in rng.choice(len(views), args.scans, replace=False):

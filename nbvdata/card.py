@@ -189,7 +189,8 @@ def _made(content: dict) -> list[str]:
     command = _reproduce(content)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "
                  "bytes are the published ones (everything is seeded, independent of the number of workers and "
-                 "of the CPU's vector instructions; the same library versions are assumed)." if command else
+                 "of the CPU's instruction set), and `--content` whether the arrays are, when other library "
+                 "versions wrote the files differently." if command else
                  "- Made with the `nbvdata.generate` API from the meshes listed below and these settings.")
     return lines + [published]
 

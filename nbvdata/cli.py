@@ -103,7 +103,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"scan {step}: view {int(view):4d}  {int(scan.hit.sum()):5d} returns  "
               f"coverage {100 * total:5.1f}%  observable {100 * observable:5.1f}%  "
               f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
-    out = render_state(grid.probabilities(), config.grid.extent, args.out, scene.views,
+    out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
                        title=f"{obj.source}: {plural(len(views), 'scan')}", labels=("last scan", "earlier scans"))
     print(f"wrote {out}")
@@ -134,8 +134,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
               f"again to continue", file=sys.stderr)
         return 130
     rate = report.samples / report.seconds if report.seconds else 0.0
+    others = len(report.others_done) + len(report.others_running)
     print(f"wrote {plural(report.samples, 'sample')} in {plural(len(report.done), 'shard')} to {args.out} in "
-          f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped))
+          f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped)
+          + (f"; {plural(others, 'shard')} {'was' if others == 1 else 'were'} left to another process"
+             if others else ""))
+    if report.others_running:
+        print(f"nbvdata generate: another process is still writing {plural(len(report.others_running), 'shard')} "
+              f"into {args.out}; run the same command again when it has finished to check that every shard is there")
     if report.failures:
         print(f"nbvdata generate: {plural(len(report.failures), 'mesh')} failed, listed in "
               f"{args.out / FAILURES_FILE}", file=sys.stderr)
@@ -178,12 +184,18 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     unreadable shard is an error, reported before anything is printed."""
     from nbvdata.summary import format_summary, summarise
 
-    summary = summarise(shard_files(args.shards))
+    paths = shard_files(args.shards)
+    summary = summarise(paths)
     if summary.problems:
         others = len(summary.problems) - 1
         raise ShardError(summary.problems[0] + (f" (and {plural(others, 'other unreadable shard')})"
                                                 if others else ""))
     print(format_summary(summary, top=args.top))
+    if args.by_step:
+        from nbvdata.gridstats import by_step, format_by_step
+
+        print("\nGrids by reconstruction step (means; span: median extent of the occupied voxels):")
+        print(format_by_step(by_step(paths)))
     return 0
 
 
@@ -230,7 +242,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     """Recompute a published version's hashes and counts; name every missing, changed or extra shard."""
     from nbvdata.manifest import verify
 
-    result = verify(args.manifest, args.root)
+    result = verify(args.manifest, args.root, by_content=args.content)
     published, totals = result.published, result.published.content["totals"]
     print(f"{args.manifest}: {published.label}, {plural(totals['shards'], 'shard')}, "
           f"{plural(totals['samples'], 'sample')}, "
@@ -244,7 +256,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
         print(f"{plural(len(result.problems), 'problem')} ({result.seconds:.1f} s): this is not the published "
               f"{published.label}; {' and '.join(fixes)}")
         return 1
-    print(f"ok: every shard is there, unchanged, with the samples listed; no others ({result.seconds:.1f} s)")
+    same = "with the same content" if args.content else "unchanged"
+    print(f"ok: every shard is there, {same}, with the samples listed; no others ({result.seconds:.1f} s)")
     return 0
 
 
@@ -266,7 +279,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
         obj = _load_object(args, config)
         scanner = MeshScanner(obj.mesh, config.sensor)
-        grid = OccupancyGrid(config.grid)
+        grid = OccupancyGrid(config.scene_grid)
         rng = np.random.default_rng(args.seed)
         for index in _parse_indices(args.views, len(views)):
             grid.integrate(scanner.scan(views[index], rng), config.sensor.far)
@@ -275,7 +288,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     highlight = None
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views))[0]
-    out = render_state(probabilities, config.grid.extent, args.out, views, highlight=highlight, title=title,
+    out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title,
                        labels=("--highlight view", ""))
     print(f"wrote {out}")
     return 0
@@ -310,7 +323,9 @@ def _show_sample(args: argparse.Namespace) -> int:
         title += f" (+{100 * gains[nbv]:.1f}% surface, overlap {100 * overlaps[nbv]:.0f}%)"
     if coverage is not None:
         title += f", coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%"
-    extent = config.get("grid", {}).get("extent", SimConfig().grid.extent)  # imported: not published
+    # the shard's cube: fixed, or fitted to the object (null extent); imported shards publish none
+    extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
+              or SimConfig().scene_grid.extent)
     out = render_state(probabilities, extent, args.out, views, highlight=nbv,
                        others=ranked[:args.top], title=title)
     print(f"wrote {out}")
@@ -354,6 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
+    inspect.add_argument("--by-step", action="store_true",
+                         help="also the grids' occupied, unknown and corner-unknown voxels and the occupied span "
+                         "per reconstruction step, beside the authors' published grids (reads every grid)")
     inspect.set_defaults(func=cmd_inspect)
 
     pub = sub.add_parser("publish", help="write a manifest and dataset card for a folder of shards: a dataset "
@@ -375,9 +393,12 @@ def build_parser() -> argparse.ArgumentParser:
     pub.set_defaults(func=cmd_publish)
 
     ver = sub.add_parser("verify", help="check shards against a manifest: missing, changed or extra files")
-    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.0.0.json")
+    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.1.0.json")
     ver.add_argument("--root", type=Path, help="folder holding the shards (default: the one the manifest records, "
                      "relative to the manifest)")
+    ver.add_argument("--content", action="store_true",
+                     help="accept a shard whose file bytes differ when every array and attribute equals the "
+                     "published one (a regeneration written by another HDF5 library, say)")
     ver.set_defaults(func=cmd_verify)
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")

@@ -29,8 +29,11 @@ def _check(condition: bool, message: str) -> None:
 
 @dataclass(frozen=True)
 class MeshConfig:
-    object_size: float = 0.24
-    """Largest bounding-box side of the object after normalisation, in metres."""
+    object_size: float = 0.136
+    """Largest bounding-box side of the object after normalisation, in metres. 0.136 m is the
+    largest object whose fitted grid cube (0.138 m) lies wholly inside the sensor's frustum from
+    every candidate view at 0.4 m, so one scan can carve the whole cube, as in the authors' grids
+    (README, "The scene")."""
     up_axis: Literal["z", "y"] = "z"
     """Axis that points up in the mesh files; "y" rotates y-up files so that +z is up."""
 
@@ -82,8 +85,13 @@ class SensorConfig:
 class GridConfig:
     size: int = 32
     """Voxels along each axis."""
-    extent: float = 0.32
-    """Side of the grid cube in metres, centred on the object (0.32 m -> 1 cm voxels)."""
+    extent: float | None = None
+    """Side of the grid cube in metres, centred on the object. None (the default, the paper's
+    scene): fitted to the object, so the object spans the grid along its largest side and the
+    voxel size follows the object: the side is ``mesh.object_size`` plus half a voxel, putting
+    the object's extreme faces a quarter voxel inside the outer voxels (OctoMap's voxels are
+    half-open, so a point exactly on the cube's upper face would fall outside the grid);
+    ``SimConfig.scene_grid`` resolves it. A number: a fixed cube, whatever the object."""
     prob_hit: float = 0.7
     """Occupancy probability of a voxel that holds a return (OctoMap default 0.7)."""
     prob_miss: float = 0.4
@@ -96,7 +104,8 @@ class GridConfig:
     def __post_init__(self) -> None:
         _check(self.size >= 2 and self.size % 2 == 0,
                f"grid.size={self.size}: must be even and >= 2 (so voxels align with OctoMap keys)")
-        _check(self.extent > 0, f"grid.extent={self.extent}: must be > 0 metres")
+        _check(self.extent is None or self.extent > 0,
+               f"grid.extent={self.extent}: must be > 0 metres, or null to fit the cube to the object")
         _check(0.5 < self.prob_hit < 1, f"grid.prob_hit={self.prob_hit}: must lie in (0.5, 1)")
         _check(0 < self.prob_miss < 0.5, f"grid.prob_miss={self.prob_miss}: must lie in (0, 0.5)")
         _check(0 < self.clamp_min < 0.5 < self.clamp_max < 1,
@@ -104,7 +113,10 @@ class GridConfig:
 
     @property
     def resolution(self) -> float:
-        """Voxel side in metres."""
+        """Voxel side in metres (of a resolved cube: see ``SimConfig.scene_grid``)."""
+        if self.extent is None:
+            raise ValueError("grid.extent is null (fitted to the object): resolve the cube with "
+                             "SimConfig.scene_grid, or give grid.extent in metres")
         return self.extent / self.size
 
 
@@ -185,6 +197,15 @@ class SimConfig:
     oracle: OracleConfig = field(default_factory=OracleConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     generate: GenerateConfig = field(default_factory=GenerateConfig)
+
+    @property
+    def scene_grid(self) -> GridConfig:
+        """The grid with its cube in metres: fitted to the object when ``grid.extent`` is null
+        (side = object_size * n / (n - 1/2), i.e. the object's largest side plus half a voxel)."""
+        if self.grid.extent is None:
+            n = self.grid.size
+            return dataclasses.replace(self.grid, extent=self.mesh.object_size * n / (n - 0.5))
+        return self.grid
 
     def dataset_dict(self) -> dict[str, Any]:
         """The settings that determine the generated data (all but ``generate``)."""

@@ -6,6 +6,10 @@ number (``nbvdata.episode``), never from the unit or the worker, so any number o
 any joblib backend (Dask included) gives the same arrays. A unit whose shard exists is done:
 running the same command again after a kill continues with the missing units. A mesh that
 cannot be used is reported and listed in ``failures.tsv``; the others go on.
+
+Several processes, on one machine or on several sharing a filesystem, may run the same job into
+one folder at once: each unit is claimed by one of them (``nbvdata.claims``), the others leave it
+to that one and go on with the rest.
 """
 
 from __future__ import annotations
@@ -27,12 +31,13 @@ import numpy as np
 import yaml
 
 from nbvdata import __version__
+from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials
 from nbvdata.config import ConfigError, MeshConfig, SimConfig
 from nbvdata.episode import ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import GENERATED, PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
+from nbvdata.shards import GENERATED, GridPalette, Shard, ShardError, write_shard
 
 CONFIG_FILE = "config.yaml"
 FAILURES_FILE = "failures.tsv"
@@ -111,12 +116,14 @@ def plan_units(sources: list[MeshSource], config: SimConfig) -> list[Unit]:
 
 @dataclass
 class UnitResult:
-    """What a worker reports back for one unit."""
+    """What a worker reports back for one unit. ``elsewhere``: left to another process, which
+    "holds" the unit or has "done" it (then nothing was run here)."""
 
     unit: Unit
     samples: int = 0
     error: str | None = None
     seconds: dict[str, float] = field(default_factory=dict)
+    elsewhere: str | None = None
 
 
 class Timer:
@@ -136,9 +143,25 @@ class Timer:
 
 def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None = None,
              threads: int = 0) -> UnitResult:
-    """Simulate and label the unit's runs and write its shard. Never raises for a bad mesh:
-    the reason comes back in ``UnitResult.error``. ``progress(runs, samples)`` is called per run.
-    ``threads`` > 0 limits numba and open3d to that many threads (parallel workers pass 1)."""
+    """Claim the unit, simulate and label its runs and write its shard. Never raises for a bad
+    mesh: the reason comes back in ``UnitResult.error``. A unit another process holds, or has
+    finished, is left to it (``UnitResult.elsewhere``). ``progress(runs, samples)`` is called per
+    run. ``threads`` > 0 limits numba and open3d to that many threads (parallel workers pass 1)."""
+    out_dir = Path(out_dir)
+    with claim(out_dir, unit.shard_name) as mine:
+        if not mine:
+            return UnitResult(unit, elsewhere="holds")
+        shard = out_dir / unit.shard_name
+        if _shard_problem(shard) is None:
+            return UnitResult(unit, elsewhere="done")
+        shard.unlink(missing_ok=True)  # broken: redone
+        drop_partials(out_dir, unit.shard_name)  # a dead process's: the claim is ours
+        return _run_claimed(unit, config, out_dir, progress, threads)
+
+
+def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None,
+                 threads: int) -> UnitResult:
+    """``run_unit`` once the unit is claimed."""
     result = UnitResult(unit)
     timer = Timer()
     if threads:
@@ -177,7 +200,7 @@ def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[i
                 "runs": np.array(unit.runs, dtype=np.int64),
                 "source": GENERATED,
             }
-            write_shard(Path(out_dir) / unit.shard_name, arrays, attrs)
+            write_shard(out_dir / unit.shard_name, arrays, attrs, partial_path(out_dir / unit.shard_name))
         result.samples = len(arrays["nbv_index"])
     except MeshError as error:
         result.error = str(error)
@@ -220,13 +243,16 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
 
 @dataclass
 class Report:
-    """The outcome of one ``generate`` call."""
+    """The outcome of one ``generate`` call. ``others_done``: units another process finished
+    meanwhile; ``others_running``: units another process still held when this one was done."""
 
     out_dir: Path
     done: list[UnitResult] = field(default_factory=list)
     skipped: list[Unit] = field(default_factory=list)
     failures: list[tuple[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    others_done: list[Unit] = field(default_factory=list)
+    others_running: list[Unit] = field(default_factory=list)
 
     @property
     def samples(self) -> int:
@@ -234,42 +260,58 @@ class Report:
 
 
 def prepare_out_dir(out_dir: Path, config: SimConfig) -> None:
-    """Create ``out_dir``, or check that the dataset there was made with the same data settings."""
+    """Create ``out_dir``, or check that the dataset there was made with the same data settings;
+    delete the partial files of killed runs (not those of runs still going)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     settings = out_dir / CONFIG_FILE
     wanted = config.dataset_dict()
-    if settings.exists():
-        existing = yaml.safe_load(settings.read_text()) or {}
-        if existing != wanted:
-            differ = sorted(f"{section}.{key}" for section in wanted for key in wanted[section]
-                            if existing.get(section, {}).get(key) != wanted[section][key])
-            raise ConfigError(f"{out_dir} holds shards made with other settings ({', '.join(differ)}): "
-                              "use a new --out folder, or the settings in "
-                              f"{settings} to resume")
-    else:
-        settings.write_text(yaml.safe_dump(wanted, sort_keys=False))
-    for stale in out_dir.glob(f"*{PARTIAL_SUFFIX}"):
-        stale.unlink()  # left by a killed run
+    with folder_lock(out_dir):  # one process writes config.yaml, the others check it
+        if settings.exists():
+            existing = yaml.safe_load(settings.read_text()) or {}
+            if existing != wanted:
+                differ = sorted(f"{section}.{key}" for section in wanted for key in wanted[section]
+                                if existing.get(section, {}).get(key) != wanted[section][key])
+                raise ConfigError(f"{out_dir} holds shards made with other settings ({', '.join(differ)}): "
+                                  "use a new --out folder, or the settings in "
+                                  f"{settings} to resume")
+        else:
+            _write_atomically(settings, yaml.safe_dump(wanted, sort_keys=False))
+    sweep_partials(out_dir)
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` by a file holding ``text``: readers see the old or the new one, whole."""
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    temporary.write_text(text)
+    os.replace(temporary, path)
+
+
+def _shard_problem(path: Path) -> str | None:
+    """None for a readable shard, else why not: "absent" or what is wrong with the file."""
+    if not path.exists():
+        return "absent"
+    try:
+        Shard(path).close()
+    except ShardError as error:
+        return str(error)
+    return None
 
 
 def _completed(path: Path) -> bool:
-    """True for a readable shard; a broken one is deleted so that its unit runs again."""
-    if not path.exists():
-        return False
-    try:
-        Shard(path).close()
-        return True
-    except ShardError as error:
-        print(f"nbvdata generate: redoing {path.name}: {error}")
-        path.unlink()
-        return False
+    """True for a readable shard; a broken one is reported, and replaced by whoever claims its unit."""
+    problem = _shard_problem(path)
+    if problem not in (None, "absent"):
+        print(f"nbvdata generate: redoing {path.name}: {problem}")
+    return problem is None
 
 
 def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
              failures: list[tuple[str, str]] = (), show_progress: bool | None = None) -> Report:
-    """Run every unit not yet in ``out_dir``; returns what was done, skipped and failed.
+    """Run every unit not yet in ``out_dir`` and not claimed by another process; returns what was
+    done, skipped, failed and left to others.
 
-    ``show_progress`` None shows the bar only on a terminal.
+    Units another process held are tried again after the others: those it has given up (killed)
+    are done here. ``show_progress`` None shows the bar only on a terminal.
     """
     from tqdm import tqdm
 
@@ -279,8 +321,9 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
     report = Report(out_dir, failures=list(failures))
     for name, reason in failures:
         print(f"nbvdata generate: failed: {name}: {reason}", file=sys.stderr)
+    units = plan_units(sources, config)
     todo = []
-    for unit in plan_units(sources, config):
+    for unit in units:
         (report.skipped if _completed(out_dir / unit.shard_name) else todo).append(unit)
     workers = config.generate.workers or os.cpu_count() or 1
     bar = tqdm(total=sum(u.run_count for u in todo), unit="run", desc="generate", disable=None if show_progress is None
@@ -295,6 +338,11 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
 
     def finished(result: UnitResult, ticked: bool) -> None:
         """A unit came back; ``ticked``: its runs were already counted, one by one."""
+        if result.elsewhere is not None:
+            bar.total -= result.unit.run_count
+            bar.refresh()
+            (report.others_running if result.elsewhere == "holds" else report.others_done).append(result.unit)
+            return
         if not ticked:
             advance(result.unit.run_count, result.samples)
         if result.error is None:
@@ -304,21 +352,33 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
             bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {result.error}", file=sys.stderr)
 
     try:
-        if workers == 1 and config.generate.backend != "dask":
-            for unit in todo:
-                finished(run_unit(unit, config, out_dir, advance), ticked=True)
-        else:
-            _run_parallel(todo, config, out_dir, workers, advance, finished)
+        with _executor(config, out_dir, workers, advance) as (execute, ticked):
+            while todo:
+                for result in execute(todo):
+                    finished(result, ticked)
+                held, report.others_running = report.others_running, []
+                if len(held) == len(todo):  # none was given up: their holders are still at work
+                    report.others_running = held
+                    break
+                todo = held  # again: a holder that died has released them
+                bar.total += sum(u.run_count for u in todo)
     finally:
         bar.close()
-        _write_failures(out_dir, report.failures)
+        _write_failures(out_dir, report.failures, units)
         report.seconds = time.perf_counter() - start
     return report
 
 
-def _run_parallel(todo: list[Unit], config: SimConfig, out_dir: Path, workers: int,
-                  advance: Callable[[int, int], None], finished: Callable[[UnitResult, bool], None]) -> None:
-    """Units on a joblib backend, one thread per worker; per-run progress through a queue."""
+@contextlib.contextmanager
+def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[[int, int], None]
+              ) -> Iterator[tuple[Callable[[list[Unit]], Iterator[UnitResult]], bool]]:
+    """``(execute, ticked)``: ``execute(units)`` runs units and yields their results as they come
+    back, in-process or on a joblib backend (one thread per worker); ``ticked``: their runs are
+    counted through ``advance`` one by one. Each worker claims its unit itself (``run_unit``), so
+    the claim is held by the process that writes the shard, whatever the backend."""
+    if workers == 1 and config.generate.backend != "dask":
+        yield (lambda units: (run_unit(unit, config, out_dir, advance) for unit in units)), True
+        return
     import joblib
 
     backend = config.generate.backend
@@ -331,20 +391,19 @@ def _run_parallel(todo: list[Unit], config: SimConfig, out_dir: Path, workers: i
         else:
             import multiprocessing
             ticks = stack.enter_context(multiprocessing.Manager()).Queue()
-        drain = None
         if ticks is not None:
             drain = threading.Thread(target=_drain, args=(ticks, advance), daemon=True)
             drain.start()
+            stack.callback(drain.join)
+            stack.callback(ticks.put, None)
         stack.enter_context(joblib.parallel_config(backend=backend, n_jobs=workers))
         progress = _QueueProgress(ticks) if ticks is not None else None
-        calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1) for unit in todo)
-        try:
-            for result in joblib.Parallel(return_as="generator_unordered")(calls):
-                finished(result, ticked=ticks is not None)
-        finally:
-            if drain is not None:
-                ticks.put(None)
-                drain.join()
+
+        def execute(units: list[Unit]) -> Iterator[UnitResult]:
+            calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1) for unit in units)
+            yield from joblib.Parallel(return_as="generator_unordered")(calls)
+
+        yield execute, ticks is not None
 
 
 class _QueueProgress:
@@ -378,9 +437,22 @@ def _dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
             yield client
 
 
-def _write_failures(out_dir: Path, failures: list[tuple[str, str]]) -> None:
+def _write_failures(out_dir: Path, failures: list[tuple[str, str]], units: list[Unit]) -> None:
+    """Merge this process's failures into ``failures.tsv``, under the folder lock. Entries already
+    there (another process's, an earlier run's) are kept, but for a mesh of ``units`` whose shards
+    are all there now; no entries left: no file."""
     path = out_dir / FAILURES_FILE
-    if failures:
-        path.write_text("mesh\treason\n" + "".join(f"{name}\t{reason}\n" for name, reason in failures))
-    elif path.exists():
-        path.unlink()
+    with folder_lock(out_dir):
+        entries = []
+        if path.exists():
+            lines = path.read_text().splitlines()[1:]
+            entries = [tuple(line.split("\t", 1)) for line in lines if "\t" in line]
+        missing = {str(u.source.path or u.source.name) for u in units if not (out_dir / u.shard_name).exists()}
+        ours = {str(u.source.path or u.source.name) for u in units}
+        kept = [entry for entry in entries if entry[0] not in ours or entry[0] in missing]
+        clean = [(name, " ".join(reason.split())) for name, reason in failures]  # one line each
+        merged = list(dict.fromkeys(kept + clean))
+        if merged:
+            _write_atomically(path, "mesh\treason\n" + "".join(f"{name}\t{reason}\n" for name, reason in merged))
+        elif path.exists():
+            path.unlink()

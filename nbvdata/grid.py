@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from nbvdata.config import GridConfig
+from nbvdata.config import GridConfig, SimConfig
 from nbvdata.sensor import Scan
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
@@ -61,7 +61,10 @@ class OccupancyGrid:
     observed : (n, n, n) bool, True once any ray has updated the voxel
     """
 
-    def __init__(self, config: GridConfig = GridConfig()):
+    def __init__(self, config: GridConfig | None = None):
+        """``config`` with its cube in metres (``SimConfig.scene_grid``); None: the default scene's."""
+        if config is None:
+            config = SimConfig().scene_grid
         self.config = config
         n = config.size
         self.resolution = config.resolution

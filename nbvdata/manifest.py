@@ -10,8 +10,10 @@ beside it (``nbvdata.card``). The manifest holds::
     config                               the settings that made the data (every shard's ``config``)
     totals                               shards, samples, runs, meshes, bytes
     meshes                               [{id, source, sha256, license, samples, runs}], by source
-    shards                               [{path, sha256, bytes, samples, first, runs}]: path relative
-                                         to root (POSIX), first = global index of its first sample
+    shards                               [{path, sha256, bytes, samples, first, runs, content}]: path
+                                         relative to root (POSIX), first = global index of its first
+                                         sample, content = ``Shard.content_digests()`` (what each
+                                         array holds, independent of the file's bytes)
     splits                               {seed, random, mesh}, see ``make_splits``
 
 The samples of a version are numbered in shard order, rows in order (the global index, the
@@ -122,10 +124,10 @@ def read_contents(root: Path, licenses: dict[str, str]) -> Contents:
                 meshes.setdefault(shard_source, {"id": None, "source": shard_source, "sha256": None})
             for key, run in zip(group.tolist(), shard["run"].tolist()):
                 runs_of[key].add(run)
-            samples, shard_runs = len(shard), list(info.runs)
+            samples, shard_runs, content = len(shard), list(info.runs), shard.content_digests()
         groups.append(group)
         shards.append({"path": name, "sha256": sha256_file(path), "bytes": path.stat().st_size,
-                       "samples": samples, "first": first, "runs": shard_runs})
+                       "samples": samples, "first": first, "runs": shard_runs, "content": content})
         first += samples
     groups = np.concatenate(groups)
     keys, counts = np.unique(groups, return_counts=True)
@@ -311,9 +313,14 @@ class Verification:
     seconds: float
 
 
-def verify(path: str | Path, root: str | Path | None = None) -> Verification:
+def verify(path: str | Path, root: str | Path | None = None, by_content: bool = False) -> Verification:
     """Recompute every listed shard's size, sha256 and sample count under the root, and look for
-    .h5 files the manifest does not list."""
+    .h5 files the manifest does not list.
+
+    A shard whose bytes differ is compared by content where the manifest records it (manifests
+    from nbvdata >= 0.2): the problem then names the arrays that differ, or says that every
+    array and attribute is equal - which ``by_content`` accepts (a regeneration written by
+    another HDF5 library or compression, say)."""
     start = time.perf_counter()
     published = load_manifest(path, root)
     if not published.root.is_dir():
@@ -322,7 +329,7 @@ def verify(path: str | Path, root: str | Path | None = None) -> Verification:
     problems, listed = [], set()
     for entry, shard_path in zip(published.content["shards"], published.shard_paths):
         listed.add(entry["path"])
-        problem = _check_shard(shard_path, entry)
+        problem = _check_shard(shard_path, entry, by_content)
         if problem is not None:
             problems.append(problem)
     for extra in sorted(p.relative_to(published.root).as_posix() for p in published.root.rglob("*.h5")):
@@ -331,18 +338,31 @@ def verify(path: str | Path, root: str | Path | None = None) -> Verification:
     return Verification(published, problems, time.perf_counter() - start)
 
 
-def _check_shard(path: Path, entry: dict) -> Problem | None:
+def _check_shard(path: Path, entry: dict, by_content: bool = False) -> Problem | None:
     """What is wrong with a listed shard, or None."""
     name = entry["path"]
     if not path.is_file():
         return Problem("missing", name)
     size = path.stat().st_size
-    if size < entry["bytes"]:
-        return Problem("truncated", name, f"{size:,} of {entry['bytes']:,} bytes")
-    if size > entry["bytes"]:
-        return Problem("changed", name, f"{size:,} bytes, the manifest lists {entry['bytes']:,}")
-    if sha256_file(path) != entry["sha256"]:
-        return Problem("changed", name, "sha256 differs from the manifest (same size)")
+    if size != entry["bytes"] or sha256_file(path) != entry["sha256"]:
+        detail = (f"size differs: {size:,} bytes, the manifest lists {entry['bytes']:,}" if size != entry["bytes"]
+                  else "sha256 differs from the manifest (same size)")
+        try:
+            with Shard(path) as shard:
+                digests = shard.content_digests() if "content" in entry else None
+        except ShardError as error:
+            if size < entry["bytes"]:
+                return Problem("truncated", name, f"{size:,} of {entry['bytes']:,} bytes; {error}")
+            return Problem("changed", name, f"{detail}; {error}")
+        if digests is None:
+            return Problem("changed", name, detail)
+        differ = sorted(key for key in entry["content"].keys() | digests.keys()
+                        if entry["content"].get(key) != digests.get(key))
+        if differ:
+            return Problem("changed", name, f"{detail}; content differs in {', '.join(differ)}")
+        if not by_content:
+            return Problem("changed", name, f"{detail}; same content (every array and attribute equal): "
+                                            "nbvdata verify --content accepts it")
     try:
         with Shard(path) as shard:
             samples = len(shard)

@@ -20,8 +20,6 @@ from nbvdata.config import MeshConfig
 
 SUPPORTED_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
-# y-up -> z-up: a +90 degree turn about x maps +y onto +z.
-_Y_UP_TO_Z_UP = trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])
 
 
 class MeshError(ValueError):
@@ -210,7 +208,8 @@ def normalise(mesh: trimesh.Trimesh, config: MeshConfig, name: str | Path = "mes
     vertices = vertices[used]
     faces = faces.reshape(-1, 3)
     if config.up_axis == "y":
-        vertices = vertices @ _Y_UP_TO_Z_UP[:3, :3].T
+        # a +90 degree turn about x maps +y onto +z: (x, y, z) -> (x, -z, y), exactly
+        vertices = np.stack([vertices[:, 0], -vertices[:, 2], vertices[:, 1]], axis=1)
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     extent = float((high - low).max())
     if not extent > 0:

@@ -44,7 +44,7 @@ class Scene:
         return cls(config, obj, views, scanner, coverage, ViewOracle(visible))
 
     def new_grid(self) -> OccupancyGrid:
-        return OccupancyGrid(self.config.grid)
+        return OccupancyGrid(self.config.scene_grid)
 
     def integrate(self, grid: OccupancyGrid, scan: Scan) -> None:
         """Insert a scan with the sensor's far range as OctoMap's maximum range."""

@@ -5,6 +5,13 @@ that hit the mesh between the near and far range return the hit point; the other
 nothing and carry a point beyond the far range along the ray, so that an integrator with a
 maximum range (OctoMap's ``insertPointCloud(..., maxrange=far)``) carves free space up to the
 far range and marks nothing occupied.
+
+Same bytes on every CPU: open3d's Embree kernels find the triangle each ray hits, but their
+distance arithmetic (SIMD width, fused multiply-adds) differs between instruction sets in the
+last bits, enough to move a point across a voxel boundary now and then. So the ray directions
+and each hit's distance (from the ray and the plane of the triangle Embree reports) are
+computed here, in float64 with a fixed order of operations and no fused multiply-add
+(numba without fastmath), and only the triangle ids come from Embree.
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterator, Sequence
 
+import numba
 import numpy as np
 import trimesh
 
@@ -63,11 +71,10 @@ class MeshScanner:
         """``threads``: open3d casting threads, 0 = all cores (parallel workers pass 1)."""
         self.config = config
         self.threads = threads
+        self._vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
+        self._faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
         self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(
-            o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-            o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
-        )
+        self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
         self._camera_rays = camera_rays(config)
 
     @property
@@ -104,18 +111,75 @@ class MeshScanner:
 
     def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
-        origins = positions.astype(np.float32)
-        # world direction = R^T @ camera direction, for every view at once: (V, N, 3)
-        directions = np.matmul(self._camera_rays[None], rotations).astype(np.float32)
         rays = np.empty((n_views, n_rays, 6), dtype=np.float32)
-        rays[..., :3] = origins[:, None, :]
-        rays[..., 3:] = directions
-        t_hit = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)), nthreads=self.threads)["t_hit"].numpy()
+        _fill_rays(self._camera_rays, positions, rotations, rays)
+        triangle = self._scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)),
+                                         nthreads=self.threads)["primitive_ids"].numpy()
+        t_hit = np.empty(n_views * n_rays, dtype=np.float64)
+        _plane_distances(rays.reshape(-1, 6), triangle, self._vertices, self._faces, t_hit)
         t_hit = t_hit.reshape(n_views, n_rays)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_hit)
-            t_hit[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum())).astype(np.float32)
+            t_hit[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum()))
         hit = (t_hit >= self.config.near) & (t_hit <= self.config.far)
-        ranges = np.where(hit, t_hit, np.float32(2 * self.config.far))
-        points = origins[:, None, :] + ranges[..., None] * directions
-        return [Scan(origins[v], points[v], hit[v]) for v in range(n_views)]
+        ranges = np.where(hit, t_hit, 2 * self.config.far)
+        points = np.empty((n_views, n_rays, 3), dtype=np.float32)
+        _end_points(rays, ranges, points)
+        return [Scan(rays[v, 0, :3].copy(), points[v], hit[v]) for v in range(n_views)]
+
+
+@numba.njit(cache=True)
+def _fill_rays(camera_rays, positions, rotations, rays):
+    """rays[v, i] = (origin, R_v^T @ camera_rays[i]) as float32, in a fixed order of operations.
+
+    camera_rays (N, 3) float64, positions (V, 3) float64, rotations (V, 3, 3) float64 world to
+    camera, rays (V, N, 6) float32 out.
+    """
+    for v in range(rays.shape[0]):
+        r = rotations[v]
+        for i in range(rays.shape[1]):
+            cx, cy, cz = camera_rays[i, 0], camera_rays[i, 1], camera_rays[i, 2]
+            rays[v, i, 0] = positions[v, 0]
+            rays[v, i, 1] = positions[v, 1]
+            rays[v, i, 2] = positions[v, 2]
+            for a in range(3):
+                rays[v, i, 3 + a] = (cx * r[0, a] + cy * r[1, a]) + cz * r[2, a]
+
+
+@numba.njit(cache=True)
+def _plane_distances(rays, triangle, vertices, faces, t_hit):
+    """t_hit[i] = distance along ray i to the plane of the triangle it hit, inf for a miss.
+
+    rays (M, 6) float32, triangle (M,) uint32 (2^32 - 1 = no hit), vertices (P, 3) float32,
+    faces (F, 3) uint32, t_hit (M,) float64 out. The float32 inputs are exact in float64.
+    """
+    for i in range(rays.shape[0]):
+        f = triangle[i]
+        if f >= faces.shape[0]:
+            t_hit[i] = np.inf
+            continue
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
+        e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
+        e2x, e2y, e2z = vertices[c, 0] - ax, vertices[c, 1] - ay, vertices[c, 2] - az
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
+        along = (nx * dx + ny * dy) + nz * dz
+        across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
+        t_hit[i] = across / along if along != 0.0 else np.inf
+
+
+@numba.njit(cache=True)
+def _end_points(rays, ranges, points):
+    """points[v, i] = origin + range * direction, computed in float64, stored as float32.
+
+    rays (V, N, 6) float32, ranges (V, N) float64, points (V, N, 3) float32 out.
+    """
+    for v in range(rays.shape[0]):
+        for i in range(rays.shape[1]):
+            t = ranges[v, i]
+            for a in range(3):
+                points[v, i, a] = np.float64(rays[v, i, a]) + t * np.float64(rays[v, i, 3 + a])

@@ -2,6 +2,12 @@
 
 Each shape is a few trimesh primitives, deterministic, and normalised like a loaded file. Its
 id is the sha256 of its name, vertices and faces.
+
+Same vertices on every CPU: trimesh builds and rotates primitives with matrix products, which
+numpy hands to OpenBLAS, whose kernels (chosen per CPU) may round the last bit differently. So
+rotations here are written out element by element, and the finished shape's vertices are
+rounded to a grid of 2^-24 of its unit (about 6e-8; 1.4e-8 m once scaled to 0.24 m), far below
+anything the simulation resolves but far above a last-bit difference.
 """
 
 from __future__ import annotations
@@ -17,14 +23,25 @@ from nbvdata.config import MeshConfig
 from nbvdata.mesh import ObjectMesh, normalise
 
 
+_QUANTUM = 2.0 ** -24
+
+
 def _moved(mesh: trimesh.Trimesh, xyz: tuple[float, float, float]) -> trimesh.Trimesh:
     mesh.apply_translation(xyz)
     return mesh
 
 
+def _rotated(mesh: trimesh.Trimesh, angle: float, axis: tuple[float, float, float]) -> trimesh.Trimesh:
+    """``mesh`` rotated by ``angle`` about ``axis`` through the origin, without a BLAS call."""
+    r = trimesh.transformations.rotation_matrix(angle, axis)[:3, :3]
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    rotated = np.stack([(v[:, 0] * r[a, 0] + v[:, 1] * r[a, 1]) + v[:, 2] * r[a, 2] for a in range(3)], axis=1)
+    return trimesh.Trimesh(vertices=rotated, faces=mesh.faces, process=False)
+
+
 def _mug() -> trimesh.Trimesh:
     handle = torus(major_radius=0.3, minor_radius=0.07, major_sections=32, minor_sections=12)
-    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    handle = _rotated(handle, np.pi / 2, (1, 0, 0))
     return trimesh.util.concatenate([cylinder(radius=0.5, height=1.1, sections=48), _moved(handle, (0.5, 0, 0))])
 
 
@@ -56,8 +73,7 @@ def _ring() -> trimesh.Trimesh:
 
 def _pill() -> trimesh.Trimesh:
     pill = capsule(height=0.8, radius=0.25, count=(24, 24))
-    pill.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 3, [0, 1, 0]))
-    return pill
+    return _rotated(pill, np.pi / 3, (0, 1, 0))
 
 
 BUILTIN_SHAPES: dict[str, Callable[[], trimesh.Trimesh]] = {
@@ -75,6 +91,7 @@ def builtin_object(name: str, config: MeshConfig = MeshConfig()) -> ObjectMesh:
     if name not in BUILTIN_SHAPES:
         raise KeyError(f"unknown built-in shape {name!r}; known: {', '.join(BUILTIN_SHAPES)}")
     raw = BUILTIN_SHAPES[name]()
+    raw = trimesh.Trimesh(vertices=np.round(raw.vertices / _QUANTUM) * _QUANTUM, faces=raw.faces, process=False)
     mesh, scale = normalise(raw, MeshConfig(object_size=config.object_size, up_axis="z"), name)
     digest = hashlib.sha256(name.encode())
     digest.update(np.ascontiguousarray(raw.vertices, dtype=np.float64).tobytes())

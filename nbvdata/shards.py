@@ -42,6 +42,7 @@ A shard is written under a temporary name and renamed when complete: it is whole
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -118,8 +119,9 @@ class GridPalette:
         return probability(np.array(self._log_odds, dtype=np.float32))
 
 
-def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
-    """Write a complete shard atomically: to ``path + .partial``, then rename over ``path``.
+def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial: Path | None = None) -> None:
+    """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
+    rename over ``path``.
 
     ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` ones may be left out);
     ``attrs`` every attribute but the version.
@@ -129,7 +131,7 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict) -> None:
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
-    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    partial = Path(partial) if partial is not None else path.with_name(path.name + PARTIAL_SUFFIX)
     try:
         with h5py.File(partial, "w", libver=("earliest", "v110")) as f:
             f.attrs["schema_version"] = SCHEMA_VERSION
@@ -231,6 +233,25 @@ class Shard:
     def grids(self, index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
         """(..., n, n, n) float32 occupancy probabilities of the selected samples."""
         return self.palette[self.file["grids"][index]]
+
+    def content_digests(self) -> dict[str, str]:
+        """sha256 (first 16 hex digits) of every dataset's values - raw C-order bytes with dtype
+        and shape - and of the attributes but ``package_version``, by name: equal digests mean
+        equal content, whatever HDF5 library, chunking or compression wrote the file."""
+        digests = {}
+        for name in sorted(self.file):
+            try:
+                data = np.ascontiguousarray(self.file[name][()])
+            except OSError:
+                raise ShardError(f"{self.path}: dataset {name} cannot be read (truncated or corrupt?): "
+                                 "delete it and run nbvdata generate again") from None
+            digest = hashlib.sha256(f"{data.dtype.str}{data.shape}".encode())
+            digest.update(data.tobytes())
+            digests[name] = digest.hexdigest()[:16]
+        attrs = {key: (value.tolist() if isinstance(value, np.ndarray) else value)
+                 for key, value in sorted(self.file.attrs.items()) if key != "package_version"}
+        digests["attributes"] = hashlib.sha256(repr(attrs).encode()).hexdigest()[:16]
+        return digests
 
     def close(self) -> None:
         self.file.close()

@@ -267,7 +267,7 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet, checkpoi
                 continue
             planners.append(LearnedPlanner(path, config.views.radius, name))
         elif name == "infogain":
-            planners.append(InfoGainPlanner(config.grid, config.sensor, config.views.radius, config.mesh.object_size,
+            planners.append(InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                             config.oracle.min_overlap, layout=config.views.layout))
         elif name == "oracle":
             planners.append(OraclePlanner(views, config.oracle.min_overlap))

@@ -1,7 +1,10 @@
 """The generator job: same arrays whatever the workers or backend, resume after a kill,
 bad meshes reported while the others go on."""
 
+import hashlib
 import os
+import re
+import selectors
 import signal
 import subprocess
 import sys
@@ -12,10 +15,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from nbvdata.claims import claim, folder_lock, partial_path
 from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources, plan_units
-from nbvdata.mesh import sha256_file
 from nbvdata.shapes import builtin_object
 from nbvdata.shards import Shard
 
@@ -226,26 +229,163 @@ def test_mesh_lists_resolve_relative_to_the_list(tmp_path):
     assert [s.name for s in sources] == ["mug.obj", "broken.obj"] and not failures
 
 
-def _sha256s(folder: Path) -> dict[str, str]:
-    return {path.name: sha256_file(path) for path in sorted(folder.glob("*.h5"))}
+# ---------------------------------------------------------------------------------------------
+# Several processes on one folder (nbvdata.claims)
+
+COMMAND_SETTINGS = ["generate.runs_per_shard=1", "episode.runs_per_mesh=6"]  # those of _command
 
 
-def test_shards_are_byte_identical_without_the_cpus_vector_extensions(tmp_path):
-    """Published manifests pin shards by sha256, so a user's CPU must not change a bit: the same
-    job with numpy's AVX-512 loops and numba's host-specific code switched off gives the same files."""
-    here, generic = tmp_path / "here", tmp_path / "generic"
-    subprocess.run(_command(here, "--no-progress"), check=True, capture_output=True)
-    env = os.environ | {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR AVX512F AVX512CD AVX512_SKX "
-                        "AVX512_CLX AVX512_CNL", "NUMBA_CPU_NAME": "generic", "NUMBA_CACHE_DIR": str(tmp_path / "jit")}
-    result = subprocess.run(_command(generic, "--no-progress"), capture_output=True, text=True, env=env)
+def _hashes(folder: Path) -> dict[str, str]:
+    """sha256 of each shard of a folder, by name."""
+    return {path.name: hashlib.sha256(path.read_bytes()).hexdigest() for path in sorted(folder.glob("*.h5"))}
+
+
+@pytest.fixture(scope="module")
+def single_run(tmp_path_factory) -> dict[str, str]:
+    """sha256 of each shard of ``_command`` run by one process: what any split of the work must give."""
+    out = tmp_path_factory.mktemp("single") / "out"
+    subprocess.run(_command(out, "--no-progress"), check=True, capture_output=True, timeout=120)
+    return _hashes(out)
+
+
+def _start(command: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0,
+                            env=os.environ | {"PYTHONUNBUFFERED": "1"}, start_new_session=True)
+
+
+def _read_until(process: subprocess.Popen, text: bytes, timeout: float = 60) -> bytes:
+    """The process's stdout up to and including ``text``, read unbuffered (``communicate`` gets the
+    rest); fails after ``timeout`` seconds or at its end."""
+    out, deadline = b"", time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(process.stdout, selectors.EVENT_READ)
+        while text not in out:
+            left = deadline - time.monotonic()
+            chunk = os.read(process.stdout.fileno(), 4096) if left > 0 and selector.select(left) else b""
+            if not chunk:
+                pytest.fail(f"no {text!r} from {process.args[:4]} within {timeout} s: {out!r}")
+            out += chunk
+    return out
+
+
+def _finish(process: subprocess.Popen, before: bytes = b"") -> tuple[int, str, str]:
+    """Wait (two minutes at most) for the process: its status, whole stdout and stderr."""
+    out, err = process.communicate(timeout=120)
+    return process.returncode, (before + out).decode(), err.decode()
+
+
+def _count(pattern: str, text: str) -> int:
+    """The number in ``text`` matched by ``pattern``'s group, 0 when it does not occur."""
+    found = re.search(pattern, text)
+    return int(found.group(1)) if found else 0
+
+
+def test_two_processes_on_one_folder_share_the_units(tmp_path, single_run):
+    """Two runs started together into one folder: each unit is done by exactly one of them, and
+    the folder is the one a single run makes, byte for byte."""
+    out = tmp_path / "out"
+    with folder_lock(out):  # both start-ups wait for it, so that both start the units at once
+        processes = [_start(_command(out, "--no-progress")),
+                     _start(_command(out, "--no-progress", "--workers", "2", "--backend", "threading"))]
+        heads = [_read_until(process, b"-> ") for process in processes]  # their first line: before the lock
+    results = [_finish(process, head) for process, head in zip(processes, heads)]
+    for status, stdout, stderr in results:
+        assert status == 0 and "failed" not in stderr, stdout + stderr
+    assert _hashes(out) == single_run  # all 36 shards, each whole and as a single run writes it
+    assert not list(out.glob("*.partial")) and not (out / FAILURES_FILE).exists()
+    wrote = [_count(r"in (\d+) shards? to", stdout) for _, stdout, _ in results]
+    # All 36 exist, so 36 written in all means none was written twice: the units were split.
+    assert sum(wrote) == 36 and min(wrote) > 0, wrote
+    for (_, stdout, _), written in zip(results, wrote):  # the rest each left to the other (or found done)
+        assert written + _count(r"(\d+) shards? (?:was|were) left to another process", stdout) + \
+            _count(r"(\d+) shards? (?:was|were) already there", stdout) == 36, stdout
+
+
+HOLDER = """
+import sys, time
+from pathlib import Path
+from nbvdata.claims import claim, partial_path
+out, name = Path(sys.argv[1]), sys.argv[2]
+with claim(out, name) as mine:  # as a generate worker holds a unit while it writes the shard
+    partial_path(out / name).write_bytes(b"half a shard")
+    print("claimed" if mine else "refused", flush=True)
+    time.sleep(300)
+"""
+
+
+def test_a_live_runs_partial_is_left_alone_and_a_killed_ones_is_redone(tmp_path, single_run):
+    """A process holding a unit and writing its partial file: a run started meanwhile leaves both
+    alone and says so; once the holder is killed, the next run deletes its stale partial and
+    does the unit."""
+    out = tmp_path / "out"
+    config = load_config(SimConfig, SMOKE, COMMAND_SETTINGS)
+    held = plan_units(builtin_sources(config.mesh), config)[7].shard_name
+    holder = _start([sys.executable, "-c", HOLDER, str(out), held])
+    try:
+        assert b"claimed" in _read_until(holder, b"claimed")
+        partial, = out.glob(f"{held}.*.partial")
+        result = subprocess.run(_command(out, "--no-progress"), capture_output=True, text=True, timeout=120)
+        assert partial.read_bytes() == b"half a shard" and not (out / held).exists()
+        assert result.returncode == 0, result.stderr
+        assert "1 shard was left to another process" in result.stdout
+        assert "another process is still writing 1 shard into" in result.stdout
+        assert len(_hashes(out)) == 35
+    finally:
+        os.killpg(holder.pid, signal.SIGKILL)
+        holder.communicate(timeout=60)
+    assert partial.exists()  # the killed holder's, stale now
+
+    result = subprocess.run(_command(out, "--no-progress"), capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert len(_sha256s(here)) == 36 and _sha256s(here) == _sha256s(generic)
+    assert "samples in 1 shard to" in result.stdout and "35 shards were already there" in result.stdout
+    assert "another process" not in result.stdout
+    assert not list(out.glob("*.partial")) and _hashes(out) == single_run
 
 
-def test_the_readme_dataset_is_the_published_builtin_shapes(tmp_path, capsys):
-    """README's main command reproduces manifests/builtin-shapes-1.0.0 byte for byte. If this fails
-    after a deliberate change to generation, publish the new data as a new version (README:
-    "Versions are immutable") and point this test at it."""
-    manifest = Path(__file__).resolve().parents[1] / "manifests" / "builtin-shapes-1.0.0.json"
-    assert main(["generate", "--out", str(tmp_path / "nbv_dataset"), "--no-progress"]) == 0
-    assert main(["verify", str(manifest), "--root", str(tmp_path / "nbv_dataset")]) == 0, capsys.readouterr().out
+@pytest.mark.parametrize("backend", ["threading", "loky", "dask"])
+def test_every_backend_leaves_a_unit_another_process_holds(tmp_path, sources, reference, backend):
+    """The workers claim their units themselves, on every backend: one held here is not run, and
+    its partial file is not touched."""
+    if backend == "dask":
+        pytest.importorskip("dask.distributed", reason="the dask extra is not installed: pip install -e '.[dask]'")
+    config = _config("generate.workers=2", "generate.runs_per_shard=2", f"generate.backend={backend}")
+    held = plan_units(sources, config)[1].shard_name
+    with claim(tmp_path, held) as mine:
+        assert mine
+        partial = partial_path(tmp_path / held)
+        partial.write_bytes(b"half a shard")
+        report = generate(sources, tmp_path, config)
+        assert partial.read_bytes() == b"half a shard" and not (tmp_path / held).exists()
+    assert [unit.shard_name for unit in report.others_running] == [held]
+    assert len(report.done) == 5 and not report.failures
+    _assert_same(_read(tmp_path), {name: arrays for name, arrays in reference.items() if name != held})
+
+    report = generate(sources, tmp_path, config)  # the holder gave up: its unit is done, the partial gone
+    assert [r.unit.shard_name for r in report.done] == [held] and not report.others_running
+    assert not partial.exists()
+    _assert_same(_read(tmp_path), reference)
+
+
+def test_failures_of_two_runs_into_one_folder_are_merged(tmp_path):
+    """Each run lists its own bad meshes; one run's entries do not wipe out another's."""
+    out, first, second = tmp_path / "out", tmp_path / "first", tmp_path / "second"
+    for folder, name in ((first, "broken_a.obj"), (second, "broken_b.obj")):
+        folder.mkdir()
+        (folder / name).write_text("v 0 0 0\nthis is not an obj file\nf 1 2 9\n")
+    runs = [_start(_command(out, "--no-progress", "--meshes", str(folder))) for folder in (first, second)]
+    for process in runs:
+        status, stdout, stderr = _finish(process)
+        assert status == 1 and "meshes failed" in stderr, stdout + stderr
+    lines = (out / FAILURES_FILE).read_text().splitlines()
+    assert lines[0] == "mesh\treason" and len(lines) == 3
+    assert sorted(Path(line.split("\t")[0]).name for line in lines[1:]) == ["broken_a.obj", "broken_b.obj"]
+
+
+def test_a_mesh_whose_shards_are_all_there_leaves_failures_tsv(tmp_path, sources):
+    """An entry naming a mesh of this run goes once every shard of that mesh is there (fixed);
+    entries naming other meshes stay."""
+    (tmp_path / FAILURES_FILE).write_text("mesh\treason\n/elsewhere/chair.obj\tMeshError: no faces\n"
+                                          f"{sources[0].name}\tRuntimeError: an earlier run\n")
+    report = generate(sources[:1], tmp_path, _config("generate.workers=1"))
+    assert report.done and not report.failures
+    assert (tmp_path / FAILURES_FILE).read_text() == "mesh\treason\n/elsewhere/chair.obj\tMeshError: no faces\n"

@@ -184,6 +184,42 @@ def test_verify_names_every_problem_at_once(shards, published, tmp_path, capsys)
     assert nbvdata(["verify", str(published), "--root", str(tmp_path / "nowhere")]) == 2
 
 
+def _rewrite(path: Path, change=None) -> None:
+    """Write ``path`` again with gzip level 9 (other bytes, same arrays), ``change``-ing its arrays."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        arrays = {name: f[name][()] for name in f}
+        attrs = dict(f.attrs)
+    if change is not None:
+        change(arrays)
+    with h5py.File(path, "w") as f:
+        f.attrs.update(attrs)
+        for name, data in arrays.items():
+            f.create_dataset(name, data=data, compression="gzip" if data.ndim else None,
+                             compression_opts=9 if data.ndim else None)
+
+
+def test_verify_by_content_accepts_other_bytes_with_the_same_arrays(shards, published, tmp_path, capsys):
+    copy = _copy(shards, tmp_path / "copy")
+    same, other = sorted(copy.glob("*.h5"))[1:3]
+    _rewrite(same)
+    assert nbvdata(["verify", str(published), "--root", str(copy)]) == 1
+    out = capsys.readouterr().out
+    assert f"changed: {same.name}: " in out and "same content (every array and attribute equal)" in out
+    assert nbvdata(["verify", str(published), "--root", str(copy), "--content"]) == 0
+    assert "ok: every shard is there, with the same content" in capsys.readouterr().out
+
+    def nudge(arrays):
+        arrays["gains"][0, 0] = np.nextafter(arrays["gains"][0, 0], np.float32(1))
+
+    _rewrite(other, nudge)
+    assert nbvdata(["verify", str(published), "--root", str(copy), "--content"]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert [line for line in lines if other.name in line][0].endswith("content differs in gains")
+    assert not [line for line in lines if same.name in line]
+
+
 def test_published_versions_are_immutable(shards, tmp_path, capsys):
     manifests = tmp_path / "manifests"
     part = tmp_path / "part"

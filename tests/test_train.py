@@ -108,7 +108,7 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
 
 
 def test_quarter_turns_rotate_grid_and_target_together(rng):
-    centres = OccupancyGrid(GridConfig()).voxel_centres()
+    centres = OccupancyGrid().voxel_centres()
     for _ in range(20):
         voxel = tuple(rng.integers(0, 32, 3))
         codes = np.zeros((1, 32, 32, 32), dtype=np.uint8)

@@ -1,0 +1,116 @@
+"""Same settings, same bytes on every x86-64 CPU.
+
+A published manifest pins shards by sha256, so a user's regeneration must not depend on the
+CPU's instruction set. The parts of a CPU that change arithmetic are simulated here, since a
+test cannot choose its machine: OpenBLAS's kernel (``OPENBLAS_CORETYPE``), numpy's SIMD loops
+(``NPY_DISABLE_CPU_FEATURES``), numba's target (``NUMBA_CPU_NAME``), and the last bits of the
+ray caster's distances (Embree's kernels differ per instruction set, and the distance is
+recomputed here from the triangle it reports). No test compares with bytes made elsewhere.
+"""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from nbvdata.config import SensorConfig
+from nbvdata.mesh import sha256_file
+from nbvdata.sensor import MeshScanner
+from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.views import Pose, view_sphere
+
+SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
+# Every numpy dispatch target above the x86-64-v2 baseline, OpenBLAS's SSE3 kernels (no AVX, no
+# fused multiply-add) and numba's generic x86-64 target: arithmetic as on the oldest CPU.
+OLD_CPU = {
+    "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR AVX512F AVX512CD AVX512_SKX AVX512_CLX "
+                                "AVX512_CNL AVX2 FMA3",
+    "OPENBLAS_CORETYPE": "Prescott",
+    "NUMBA_CPU_NAME": "generic",
+}
+
+
+def _sha256s(folder: Path) -> dict[str, str]:
+    return {path.name: sha256_file(path) for path in sorted(folder.glob("*.h5"))}
+
+
+def _generate(out: Path, env: dict | None = None) -> None:
+    command = [sys.executable, "-m", "nbvdata", "generate", "--out", str(out), "--config", str(SMOKE),
+               "--workers", "1", "--set", "generate.runs_per_shard=1", "--runs-per-mesh", "6", "--no-progress"]
+    result = subprocess.run(command, capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr
+
+
+def test_shards_are_byte_identical_with_an_old_cpus_arithmetic(tmp_path):
+    here, old = tmp_path / "here", tmp_path / "old"
+    _generate(here)
+    _generate(old, os.environ | OLD_CPU | {"NUMBA_CACHE_DIR": str(tmp_path / "jit")})
+    assert len(_sha256s(here)) == 36 and _sha256s(here) == _sha256s(old)
+
+
+_SHAPE_DIGESTS = """
+import hashlib, json
+from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+print(json.dumps({name: [builtin_object(name).mesh_id,
+                         hashlib.sha256(builtin_object(name).mesh.vertices.tobytes()).hexdigest()]
+                  for name in BUILTIN_SHAPES}))
+"""
+
+
+def test_builtin_shapes_do_not_depend_on_the_blas_kernel():
+    """trimesh rotates primitives with matrix products; OpenBLAS's kernels round them differently
+    (the pill's vertices changed with OPENBLAS_CORETYPE=Prescott before the shapes were rounded)."""
+    digests = {}
+    for kernel in ("Prescott", "Sandybridge", "Haswell"):
+        result = subprocess.run([sys.executable, "-c", _SHAPE_DIGESTS], capture_output=True, text=True,
+                                env=os.environ | {"OPENBLAS_CORETYPE": kernel})
+        assert result.returncode == 0, result.stderr
+        digests[kernel] = json.loads(result.stdout)
+    here = {name: [builtin_object(name).mesh_id, hashlib.sha256(builtin_object(name).mesh.vertices.tobytes())
+                   .hexdigest()] for name in BUILTIN_SHAPES}
+    assert all(d == here for d in digests.values())
+
+
+class _PerturbedDistances:
+    """A ray-casting scene whose distances are off by a few units in the last place, as another
+    instruction set's kernels may compute them; the triangles hit are the true ones."""
+
+    def __init__(self, scene, rng):
+        self.scene, self.rng = scene, rng
+
+    def cast_rays(self, rays, nthreads=0):
+        from nbvdata._open3d import open3d as o3d
+
+        result = self.scene.cast_rays(rays, nthreads=nthreads)
+        t_hit = result["t_hit"].numpy()
+        ulps = self.rng.integers(-3, 4, t_hit.shape).astype(np.int32)
+        finite = np.isfinite(t_hit)
+        t_hit[finite] = (t_hit[finite].view(np.int32) + ulps[finite]).view(np.float32)
+        return {**result, "t_hit": o3d.core.Tensor(t_hit)}
+
+
+def test_scans_do_not_depend_on_the_ray_casters_distance_arithmetic(rng):
+    obj = builtin_object("mug")
+    exact, perturbed = MeshScanner(obj.mesh), MeshScanner(obj.mesh)
+    perturbed._scene = _PerturbedDistances(perturbed._scene, rng)
+    views = view_sphere()
+    for a, b in zip(exact.scan_many([views[v] for v in range(0, 500, 25)]),
+                    perturbed.scan_many([views[v] for v in range(0, 500, 25)])):
+        assert a.hit.sum() > 1000
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.hit, b.hit)
+
+
+def test_a_face_seen_head_on_is_hit_exactly_on_its_plane():
+    """The distance comes from the plane of the triangle hit, in float64: every point on the face
+    x = 0.05 of a box seen from +x has x == float32(0.05) exactly (Embree's float32 distances
+    scatter by a few units in the last place)."""
+    box = trimesh.creation.box((0.1, 0.1, 0.1))
+    scan = MeshScanner(box, SensorConfig()).scan(Pose.look_at(np.array([0.4, 0.0, 0.0])))
+    assert scan.hit.sum() > 1000
+    assert np.all(scan.hit_points[:, 0] == np.float32(0.05))
+    assert np.all(np.abs(scan.hit_points[:, 1:]) <= 0.05 + 1e-7)
