@@ -36,7 +36,7 @@ The usual workflow: generate -> inspect -> publish -> verify, then `nbvtrain fit
 published version."""
 
 EPILOG = """\
-example (the 6 built-in shapes, 20 runs each: 839 labelled states, 6 shards):
+example (the 6 built-in shapes, 20 runs each, into 6 shards):
   nbvdata generate --out nbv_dataset
   nbvdata inspect nbv_dataset
   nbvdata publish nbv_dataset --name my-shapes --version 1.0.0
