@@ -42,7 +42,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
@@ -290,8 +290,27 @@ def load_manifest(path: str | Path, root: str | Path | None = None) -> Published
     if not isinstance(content, dict) or content.get("manifest_format") != MANIFEST_FORMAT:
         raise ManifestError(f"{path}: not an nbvdata manifest of format {MANIFEST_FORMAT}: pass a "
                             "NAME-X.Y.Z.json written by nbvdata publish")
+    missing = [key for key in ("name", "version", "root", "totals", "shards", "splits") if key not in content]
+    entries = content.get("shards")
+    if missing or not isinstance(content["root"], str) or not isinstance(entries, list) or not all(
+            isinstance(entry, dict) and {"path", "sha256", "bytes", "samples"} <= entry.keys() for entry in entries):
+        raise ManifestError(f"{path}: incomplete manifest ({', '.join(missing) or 'root or shards'} missing or "
+                            "malformed): restore the published copy")
+    for entry in entries:
+        if not _stays_inside(entry["path"]):
+            raise ManifestError(f"{path}: shard path {str(entry['path'])[:80]!r} leaves the shards' folder; a "
+                                "manifest lists its shards relative to its root, inside it: restore the published copy")
     base = Path(root) if root is not None else path.parent / content["root"]
     return Published(path, content, hashlib.sha256(raw).hexdigest(), base)
+
+
+def _stays_inside(name: object) -> bool:
+    """Whether a manifest's shard path names a file below its root: relative, no '..', on POSIX
+    and Windows alike."""
+    if not isinstance(name, str) or not name.strip() or "\0" in name:
+        return False
+    posix, windows = PurePosixPath(name), PureWindowsPath(name)
+    return not (posix.is_absolute() or windows.drive or windows.root or ".." in posix.parts or ".." in windows.parts)
 
 
 @dataclass(frozen=True)
@@ -327,8 +346,12 @@ def verify(path: str | Path, root: str | Path | None = None, by_content: bool = 
         raise ManifestError(f"{published.root}: no such folder, where {published.path} expects its shards: "
                             "pass --root DIR, the folder that holds them")
     problems, listed = [], set()
+    inside = published.root.resolve()
     for entry, shard_path in zip(published.content["shards"], published.shard_paths):
         listed.add(entry["path"])
+        if shard_path.exists() and not shard_path.resolve().is_relative_to(inside):
+            raise ManifestError(f"{published.path}: shard {entry['path']} links to {shard_path.resolve()}, outside "
+                                f"{published.root}: pass --root the folder that really holds the shards")
         problem = _check_shard(shard_path, entry, by_content)
         if problem is not None:
             problems.append(problem)

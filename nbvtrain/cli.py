@@ -1,5 +1,5 @@
-"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, baselines,
-closed-loop evaluation of planners.
+"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, score the
+baselines and evaluate planners in closed-loop reconstructions.
 
 Expected user errors (a bad setting, a missing or broken shard or checkpoint) print one line
 naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
@@ -19,8 +19,9 @@ from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
 from nbvtrain import __version__
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import MODELS
+
+INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
+                 "--index-url https://download.pytorch.org/whl/cpu)")
 
 FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
@@ -29,6 +30,7 @@ FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """Train a network; with --resume continue the run in --out."""
+    from nbvtrain.config import TrainConfig
     from nbvtrain.train import Interrupted, fit, load_run_config
 
     flags = {key: getattr(args, attr) for attr, key in FIT_FLAGS.items() if getattr(args, attr) is not None}
@@ -55,7 +57,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
-    from nbvtrain.predict import Predictor, prediction_json
+    from nbvtrain.predict import GridError, Predictor, prediction_json
 
     predictor = Predictor(args.checkpoint, device=args.device, k=args.k, radius=args.radius)
     if args.grid.suffix == ".npy":
@@ -63,15 +65,20 @@ def cmd_predict(args: argparse.Namespace) -> int:
             grid = np.load(args.grid)
         except (OSError, ValueError) as error:
             raise ShardError(f"{args.grid}: not a readable .npy grid ({error})") from None
+        if not isinstance(grid, np.ndarray):
+            raise ShardError(f"{args.grid}: holds several arrays (.npz), not one grid: np.save one 32^3 grid")
         if grid.size != 32 ** 3:
-            raise ShardError(f"{args.grid}: holds {grid.size} values, a grid has 32^3 = 32768")
+            raise ShardError(f"{args.grid}: holds {plural(grid.size, 'value')}, a grid has 32^3 = 32768")
         grid, source = grid.reshape(32, 32, 32), str(args.grid)
     else:
         with Shard(args.grid) as shard:
             if not 0 <= args.index < len(shard):
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
-    (prediction,) = predictor.predict(grid)
+    try:
+        (prediction,) = predictor.predict(grid)
+    except GridError as error:
+        raise ShardError(f"{source}: {error}") from None
     print(prediction_json(prediction, predictor, source))
     return 0
 
@@ -142,7 +149,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvtrain", description=__doc__.splitlines()[0])
+    from nbvtrain.models import MODELS
+
+    summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
+    parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -212,6 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        import torch  # noqa: F401  (nbvtrain's one optional dependency: nbvdata runs without it)
+    except ImportError as error:
+        print(f"nbvtrain: error: nbvtrain needs PyTorch, which is not installed ({error}): {INSTALL_TORCH}",
+              file=sys.stderr)
+        return 2
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

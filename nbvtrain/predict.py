@@ -14,9 +14,8 @@ axis would show in yaw.
 
 from __future__ import annotations
 
-import copy
+import functools
 import json
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -24,9 +23,10 @@ from typing import Callable
 import numpy as np
 import torch
 
-from nbvdata.shards import ShardError
+from nbvdata.config import ConfigError
 from nbvdata.views import Pose
-from nbvtrain.models import NBVNet, build_model, class_positions
+from nbvtrain.checkpoint import load_checkpoint, model_from
+from nbvtrain.models import GRID_SIZE, NBVNet, class_positions
 
 
 @dataclass(frozen=True)
@@ -48,17 +48,13 @@ class Predictor:
 
     def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
         path = Path(checkpoint)
-        if not path.is_file():
-            raise ShardError(f"{path}: no such checkpoint (train one with nbvtrain fit; runs/NAME/best.pt)")
+        state = load_checkpoint(path)
+        self.model: NBVNet = model_from(state, path)
         try:
-            state = torch.load(path, map_location=device, weights_only=False)
-            config = state["config"]
-            self.model: NBVNet = build_model(state["model"], config["dropout_from"], config["dropout"])
-            self.model.load_state_dict(state["state_dict"])
-        except (KeyError, RuntimeError, EOFError, ValueError) as error:
-            raise ShardError(f"{path}: not an nbvtrain checkpoint ({str(error).splitlines()[0][:80]})") from None
-        self.model.to(device).eval()
-        self.device = torch.device(device)
+            self.device = torch.device(device)
+            self.model.to(self.device).eval()
+        except (RuntimeError, AssertionError) as error:  # an unknown device, or one this torch lacks
+            raise ConfigError(f"device {device!r}: {str(error).strip()[:80]}: use cpu") from None
         self._features = _fast_features(self.model, self.device)
         self.name, self.epoch = state["model"], state["epoch"]
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
@@ -66,10 +62,9 @@ class Predictor:
         self._classes = torch.from_numpy(class_positions()).float().to(self.device)
 
     def outputs(self, grids: np.ndarray) -> np.ndarray:
-        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale)."""
-        grids = np.asarray(grids, dtype=np.float32)
-        if grids.ndim == 3:
-            grids = grids[None]
+        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale).
+        GridError (a ValueError) for anything else (see ``check_grids``)."""
+        grids = check_grids(grids)
         with torch.inference_mode():
             output = self._features(torch.from_numpy(grids).to(self.device).unsqueeze(1))
             output = self.model.head(output)
@@ -78,7 +73,8 @@ class Predictor:
         return output.cpu().numpy().astype(np.float64)
 
     def predict(self, grids: np.ndarray) -> list[NBVPrediction]:
-        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions."""
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions.
+        GridError (a ValueError) for anything else (see ``check_grids``)."""
         predictions = []
         for raw in self.outputs(grids):
             norm = np.linalg.norm(raw)
@@ -88,21 +84,73 @@ class Predictor:
         return predictions
 
 
+class GridError(ValueError):
+    """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
+
+
+ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
+
+
+def check_grids(grids: np.ndarray) -> np.ndarray:
+    """(n, n, n) or (B, n, n, n) float probabilities in [0, 1], n = 32 -> (B, n, n, n) float32.
+
+    GridError for another shape, an integer or boolean dtype, NaN or values outside [0, 1]."""
+    array = np.asarray(grids)
+    shape = (GRID_SIZE,) * 3
+    if array.ndim not in (3, 4) or array.shape[-3:] != shape:
+        raise GridError(f"grid has shape {array.shape}, expected {shape} or (B, {', '.join(map(str, shape))})")
+    if array.dtype.kind != "f":
+        raise GridError(f"grid has dtype {array.dtype}, expected {ENCODING}")
+    if array.size:
+        nan = np.isnan(array)
+        if nan.any():
+            raise GridError(f"grid holds {int(nan.sum())} NaN values of {array.size}: expected {ENCODING}")
+        low, high = float(array.min()), float(array.max())
+        if low < 0 or high > 1:
+            raise GridError(f"grid holds values in [{low:g}, {high:g}], outside [0, 1]: expected {ENCODING}")
+    array = array.astype(np.float32, copy=False)
+    return array[None] if array.ndim == 3 else array
+
+
 def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
-    """The convolutional part for inference: on a CPU with oneDNN, the layers converted to
-    oneDNN's blocked layout (2.3x faster at batch 1 here: 3.3 vs 7.7 ms for nbvnet-4-5, the
-    same outputs to 1e-8; benchmarks/predict.py); elsewhere the model's own layers."""
+    """The convolutional part for inference: on a CPU with oneDNN, the convolutions run on
+    oneDNN's blocked layout (3x faster at batch 1 here: 2.5 vs 7.7 ms for nbvnet-4-5, the same
+    outputs to 1e-7; benchmarks/predict.py); elsewhere the model's own layers.
+
+    The convolutions call ``torch.mkldnn_convolution`` on pre-ordered weights directly, as
+    ``torch.utils.mkldnn`` does inside ``torch.jit`` script modules (deprecated: they warn);
+    pooling, ReLU and (eval-mode) dropout take oneDNN tensors as they are."""
     if device.type != "cpu" or not torch.backends.mkldnn.is_available():
         return model.features
+    layers: list[Callable[[torch.Tensor], torch.Tensor]] = []
+    reorder = getattr(torch._C._nn, "mkldnn_reorder_conv3d_weight", None)
     try:
-        with warnings.catch_warnings():  # torch.utils.mkldnn builds on the deprecated torch.jit
-            warnings.simplefilter("ignore", DeprecationWarning)
-            from torch.utils import mkldnn
-
-            features = mkldnn.to_mkldnn(copy.deepcopy(model.features))
-    except (ImportError, AttributeError, RuntimeError):  # a torch without it: the plain layers
+        for layer in model.features:
+            if isinstance(layer, torch.nn.Conv3d):
+                weight, bias = layer.weight.detach().to_mkldnn(), layer.bias.detach().to_mkldnn()
+                if reorder is not None:  # the weights in the layout the convolution wants, once
+                    weight = reorder(weight, layer.padding, layer.stride, layer.dilation, layer.groups)
+                layers.append(functools.partial(_mkldnn_conv, weight=weight, bias=bias, conv=layer))
+            else:
+                layers.append(layer)
+        fast = functools.partial(_run_mkldnn, layers)
+        with torch.inference_mode():
+            fast(torch.full((1, 1) + (GRID_SIZE,) * 3, 0.5))  # fails here where this torch cannot
+    except (AttributeError, RuntimeError, TypeError):  # a torch without it: the plain layers
         return model.features
-    return lambda grids: features(grids.to_mkldnn()).to_dense()
+    return fast
+
+
+def _mkldnn_conv(grids: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor,
+                 conv: torch.nn.Conv3d) -> torch.Tensor:
+    return torch.mkldnn_convolution(grids, weight, bias, conv.padding, conv.stride, conv.dilation, conv.groups)
+
+
+def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: torch.Tensor) -> torch.Tensor:
+    grids = grids.to_mkldnn()
+    for layer in layers:
+        grids = layer(grids)
+    return grids.to_dense()
 
 
 def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str) -> str:

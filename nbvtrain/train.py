@@ -37,6 +37,7 @@ from torch import nn
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
 from nbvdata.text import plural
+from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
 from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
 from nbvtrain.metrics import evaluate, format_ratio
@@ -91,33 +92,35 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     saving on Ctrl-C.
     """
     out = Path(out)
-    checkpoint = _start(out, config, resume)
+    checkpoint = _check_run(out, config, resume)
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    device = resolve_device(config.device)
+    torch.manual_seed(config.seed)
+    model = build_model(config.model, config.dropout_from, config.dropout).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    history: list[dict] = []
+    if checkpoint is not None:
+        restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
+        restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
+        history = checkpoint["history"]
     shards, published = _sources(list(shards), manifest, root, out, resume)
     if published is not None:
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    device = resolve_device(config.device)
     data = load_shards(shards, config.memory_limit_gb)
     try:
         if published is None:
             train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
         else:
             train_idx, val_idx, split = published_split(published, config.split)
+        # Every input is checked: only now is anything written (a bad shard leaves no run folder).
+        _start(out, config)
         _write_text(out / "data.json", json.dumps({
             "shards": [str(Path(p).resolve()) for p in data.paths], "samples": len(data),
             "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
             **({} if published is None else {"manifest": published.identity}),
             "val_indices": val_idx.tolist()}, indent=1))
-        torch.manual_seed(config.seed)
-        model = build_model(config.model, config.dropout_from, config.dropout).to(device)
-        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-        history: list[dict] = []
-        if checkpoint is not None:
-            model.load_state_dict(checkpoint["state_dict"])
-            optimizer.load_state_dict(checkpoint["optimizer"])
-            history = checkpoint["history"]
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
             f"{plural(len(data.paths), 'shard')}")
@@ -151,24 +154,33 @@ def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: 
     return published.shard_paths, published
 
 
-def _start(out: Path, config: TrainConfig, resume: bool) -> dict | None:
-    """Prepare the run folder; return the checkpoint to resume from, if any."""
+def _check_run(out: Path, config: TrainConfig, resume: bool) -> dict | None:
+    """Check the run folder without writing to it; return the checkpoint to resume from, if any."""
     last = out / "last.pt"
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: a file, not a folder: choose another --out")
     if not resume:
         if last.exists():
             raise ConfigError(f"{out} already holds a run: add --resume to continue it, or choose another --out")
-        out.mkdir(parents=True, exist_ok=True)
-        _write_text(out / "config.yaml", to_yaml(config))
         return None
     saved = load_run_config(out)
     if to_dict(saved) | {"epochs": 0} != to_dict(config) | {"epochs": 0}:
         changed = [k for k, v in to_dict(config).items() if k != "epochs" and to_dict(saved)[k] != v]
         raise ConfigError(f"--resume: the run in {out} was made with other settings ({', '.join(changed)}); "
                           "only --epochs may change: drop the others or start a new --out")
-    _write_text(out / "config.yaml", to_yaml(config))
     if not last.exists():
         return None  # stopped before its first epoch ended: start over in the same folder
-    return torch.load(last, map_location="cpu", weights_only=False)
+    return load_checkpoint(last, _resume_fix(out), RESUME_KEYS)
+
+
+def _resume_fix(out: Path) -> str:
+    return f"restore it from a copy, or start a new run with another --out than {out}"
+
+
+def _start(out: Path, config: TrainConfig) -> None:
+    """Make the run folder and write its settings."""
+    out.mkdir(parents=True, exist_ok=True)
+    _write_text(out / "config.yaml", to_yaml(config))
 
 
 def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, train_idx: np.ndarray,
@@ -280,14 +292,11 @@ def _validate(model: NBVNet, data: ShardSet, val_idx: np.ndarray, palette: torch
 
 def _save(path: Path, model: NBVNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
           history: list[dict], epoch: int, view_radius: float) -> None:
-    """A checkpoint: weights, optimiser, settings, model name, history; written atomically."""
-    state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
-             "view_radius": view_radius,
-             "state_dict": model.state_dict(), "optimizer": optimizer.state_dict(), "history": history,
-             "target": "unit NBV position (x, y, z) / view radius"}
-    partial = path.with_name(path.name + ".partial")
-    torch.save(state, partial)
-    os.replace(partial, path)
+    """A checkpoint: weights, optimiser, settings, model name, history; plain data, written atomically."""
+    save_checkpoint(path, {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
+                           "view_radius": view_radius, "state_dict": model.state_dict(),
+                           "optimizer": optimizer.state_dict(), "history": history,
+                           "target": "unit NBV position (x, y, z) / view radius"})
 
 
 def _write_text(path: Path, text: str) -> None:

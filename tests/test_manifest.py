@@ -1,6 +1,6 @@
 """Published versions: the manifest pins every shard, verify names each missing, changed,
-truncated or extra one, versions are immutable, splits are disjoint and seeded, the card loads a
-sample, and nbvtrain fits exactly a published version."""
+truncated or extra one and refuses shard paths outside the root, versions are immutable, splits
+are disjoint and seeded, the card loads a sample, and nbvtrain fits exactly a published version."""
 
 import hashlib
 import json
@@ -220,6 +220,68 @@ def test_verify_by_content_accepts_other_bytes_with_the_same_arrays(shards, publ
     assert not [line for line in lines if same.name in line]
 
 
+def test_a_complete_smaller_shard_is_not_called_truncated(shards, published, tmp_path, capsys):
+    copy = _copy(shards, tmp_path / "copy")
+    files = sorted(copy.glob("*.h5"), key=lambda path: path.stat().st_size)
+    smallest, largest = files[0], files[-1]
+    size, listed = smallest.stat().st_size, largest.stat().st_size
+    assert size < listed
+    shutil.copy(smallest, largest)  # a whole, readable shard, only not the one published
+    assert nbvdata(["verify", str(published), "--root", str(copy)]) == 1
+    out = capsys.readouterr().out
+    assert f"changed: {largest.name}: size differs: {size:,} bytes, the manifest lists {listed:,}" in out
+    assert "truncated" not in out
+
+
+def _escaping(published: Path, shards: Path, tmp_path: Path, how: str) -> tuple[Path, Path]:
+    """A copy of the shards and a manifest for it whose first shard lies outside the copy: the
+    same bytes, so only where it lies is wrong. Returns (manifest, root)."""
+    copy = _copy(shards, tmp_path / "copy")
+    content = json.loads(published.read_text())
+    name = content["shards"][0]["path"]
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (copy / name).rename(outside / name)
+    if how == "link":
+        (copy / name).symlink_to(outside / name)
+    else:
+        content["shards"][0]["path"] = {"dotdot": f"../outside/{name}", "absolute": str(outside / name),
+                                        "nested dotdot": f"x/../../outside/{name}",
+                                        "windows": f"..\\outside\\{name}"}[how]
+    manifest = tmp_path / "manifests" / published.name
+    manifest.parent.mkdir()
+    manifest.write_text(json.dumps(content))
+    return manifest, copy
+
+
+@pytest.mark.parametrize("how", ["dotdot", "absolute", "nested dotdot", "windows", "link"])
+def test_shard_paths_that_leave_the_root_are_refused(shards, published, tmp_path, capsys, how):
+    manifest, root = _escaping(published, shards, tmp_path, how)
+    assert nbvdata(["verify", str(manifest), "--root", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(manifest) in err, err
+    assert ("outside" in err and "--root" in err) if how == "link" else "leaves the shards' folder" in err
+    run = tmp_path / "run"
+    assert nbvtrain(["fit", str(manifest), "--root", str(root), "--epochs", "1", "--out", str(run), *FAST]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1 and not run.exists()
+
+
+@pytest.mark.parametrize("damage", ["no shards", "an entry without bytes", "a number for a path"])
+def test_an_incomplete_manifest_is_one_line(published, tmp_path, capsys, damage):
+    content = json.loads(published.read_text())
+    if damage == "no shards":
+        del content["shards"]
+    elif damage == "an entry without bytes":
+        del content["shards"][1]["bytes"]
+    else:
+        content["shards"][1]["path"] = 7
+    manifest = tmp_path / published.name
+    manifest.write_text(json.dumps(content))
+    assert nbvdata(["verify", str(manifest), "--root", str(published.parent)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(manifest) in err and "restore the published copy" in err, err
+
+
 def test_published_versions_are_immutable(shards, tmp_path, capsys):
     manifests = tmp_path / "manifests"
     part = tmp_path / "part"
@@ -295,6 +357,7 @@ def test_imported_shards_publish_with_the_random_split_only(tmp_path, rng, capsy
     manifest = str(tmp_path / "manifests" / "legacy-1.0.0.json")
     assert nbvtrain(["fit", manifest, "--split", "mesh", "--out", str(tmp_path / "run"), *FAST]) == 2
     assert "no mesh split (the shards hold no mesh ids (imported data)): use --split random" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before the run folder is made
 
 
 def test_fit_trains_on_the_published_split_records_it_and_resumes_exactly(published, tmp_path):
@@ -310,7 +373,7 @@ def test_fit_trains_on_the_published_split_records_it_and_resumes_exactly(publis
     assert data["split"]["test_meshes"] == json.loads(published.read_text())["splits"]["mesh"]["test"]["meshes"]
     assert nbvtrain(["fit", str(published), "--split", "mesh", "--epochs", "1", "--out", str(resumed), *FAST]) == 0
     assert nbvtrain(["fit", "--resume", "--epochs", "2", "--out", str(resumed), "--no-progress"]) == 0
-    a, b = (torch.load(run / "last.pt", weights_only=False)["state_dict"] for run in (straight, resumed))
+    a, b = (torch.load(run / "last.pt", weights_only=True)["state_dict"] for run in (straight, resumed))
     assert all(torch.equal(a[key], b[key]) for key in a)
 
 
@@ -322,4 +385,4 @@ def test_fit_refuses_a_tampered_version(shards, published, tmp_path, capsys):
     assert nbvtrain(["fit", str(published), "--root", str(copy), "--epochs", "1", "--out", str(run), *FAST]) == 2
     err = capsys.readouterr().err
     assert f"changed: {victim.name}: sha256 differs" in err and len(err.strip().splitlines()) == 1
-    assert not (run / "last.pt").exists()
+    assert not run.exists()

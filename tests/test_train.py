@@ -36,7 +36,7 @@ def shards(tmp_path_factory) -> Path:
 
 
 def _weights(run: Path) -> dict[str, torch.Tensor]:
-    return torch.load(run / "last.pt", weights_only=False)["state_dict"]
+    return torch.load(run / "last.pt", weights_only=True)["state_dict"]
 
 
 def test_fit_writes_a_complete_run_folder(shards, tmp_path):
@@ -48,7 +48,7 @@ def test_fit_writes_a_complete_run_folder(shards, tmp_path):
     assert rows[0].split(",")[:7] == ["epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg",
                                       "val_gain_ratio"]
     assert len(rows) == 3
-    checkpoint = torch.load(run / "best.pt", weights_only=False)
+    checkpoint = torch.load(run / "best.pt", weights_only=True)
     assert checkpoint["model"] == "nbvnet-3-3" and checkpoint["config"]["batch_size"] == 16
     for row in checkpoint["history"]:
         assert 0 < row["val_gain_ratio"] <= 1 and 0 <= row["val_angle_deg"] <= 180
@@ -88,6 +88,34 @@ def test_user_errors_exit_2_with_one_line(shards, tmp_path, capsys):
     assert "only --epochs may change" in errors[4] and "did you mean 'dropout'" in errors[5]
 
 
+def test_bad_input_leaves_no_run_folder_behind(shards, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "junk.h5").write_bytes(b"not an HDF5 file" * 100)
+    run = tmp_path / "run"
+    assert main(["fit", str(bad), "--epochs", "1", "--out", str(run), *FAST]) == 2
+    assert "junk.h5: not a readable HDF5 file" in capsys.readouterr().err
+    assert not run.exists()
+    if not torch.cuda.is_available():
+        assert main(["fit", str(shards), "--device", "cuda", "--epochs", "1", "--out", str(run), *FAST]) == 2
+        assert "torch sees no GPU" in capsys.readouterr().err and not run.exists()
+    mine = tmp_path / "mine"  # a folder the user made: what is in it stays, and nothing is added
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    assert main(["fit", str(bad), "--epochs", "1", "--out", str(mine), *FAST]) == 2
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"] and (mine / "notes.txt").read_text() == "keep me"
+    (tmp_path / "file.txt").write_text("keep me")
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(tmp_path / "file.txt"), *FAST]) == 2
+    assert "a file, not a folder" in capsys.readouterr().err and (tmp_path / "file.txt").read_text() == "keep me"
+
+
+def test_help_ends_in_whole_sentences(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    description = capsys.readouterr().out.split("\n\n")[1]
+    assert description.rstrip().endswith(".") and "closed-loop" in description, description
+
+
 def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
     run = tmp_path / "run"
     process = subprocess.Popen([sys.executable, "-m", "nbvtrain", "fit", str(shards), "--epochs", "100000",
@@ -101,7 +129,7 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
     assert "continue with: nbvtrain fit --resume" in err
-    done = torch.load(run / "last.pt", weights_only=False)["epoch"]
+    done = torch.load(run / "last.pt", weights_only=True)["epoch"]
     assert done >= 1
     assert main(["fit", "--resume", "--epochs", str(done + 1), "--out", str(run), "--no-progress"]) == 0
     assert len((run / "metrics.csv").read_text().splitlines()) == done + 2

@@ -1,0 +1,106 @@
+"""Checkpoints of ``nbvtrain fit``: plain data only, written atomically, read without running code.
+
+A checkpoint is a dict of plain data: ``model`` (registry name), ``task``, ``epoch``,
+``config`` (the TrainConfig as a dict), ``view_radius``, ``state_dict`` and ``optimizer``
+(tensors, numbers, lists), ``history`` (one dict of numbers per epoch) and ``target``.
+
+Every checkpoint is read here, with ``torch.load(weights_only=True)``: a file that carries
+pickled Python objects is refused, so no code from it runs. Anything that is not a checkpoint
+(missing, empty, text, other bytes, a torch file lacking the keys) raises ``CheckpointError``
+with one line that names the file and the fix.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nbvdata.shards import ShardError
+from nbvtrain.models import MODELS, NBVNet, build_model
+
+INFERENCE_KEYS = ("model", "epoch", "config", "state_dict")
+RESUME_KEYS = INFERENCE_KEYS + ("optimizer", "history")
+USE_FIT = "pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)"
+
+
+class CheckpointError(ShardError):
+    """A checkpoint that cannot be read or trusted; the one-line message names the fix."""
+
+
+def save_checkpoint(path: Path, state: dict) -> None:
+    """Write ``state`` (converted to plain data, see ``plain``) to ``path`` whole or not at all."""
+    partial = path.with_name(path.name + ".partial")
+    torch.save(plain(state), partial)
+    os.replace(partial, path)
+
+
+def plain(value):
+    """``value`` with numpy scalars as Python numbers and numpy arrays as tensors, so that
+    ``torch.load(weights_only=True)`` reads it back; TypeError for any other object."""
+    if isinstance(value, dict):
+        return {key: plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(plain(item) for item in value)
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(value.copy())
+    if value is None or isinstance(value, (str, int, float, bool, torch.Tensor)):
+        return value
+    raise TypeError(f"a checkpoint holds plain data only, not {type(value).__name__}")
+
+
+def load_checkpoint(path: str | Path, fix: str = USE_FIT, keys: tuple[str, ...] = INFERENCE_KEYS) -> dict:
+    """The checkpoint at ``path``, on the CPU, with ``keys`` checked; CheckpointError naming
+    ``path`` and ``fix`` otherwise. Never unpickles objects (weights_only=True)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file; {fix}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # a foreign file can fail in any way: each is "not a checkpoint"
+        unsafe = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(error))
+        if unsafe:
+            raise CheckpointError(f"{path}: refused: it holds a pickled Python object ({unsafe.group(1)}), not "
+                                  f"plain data, and loading it could run code; {fix}") from None
+        first = (str(error).strip().splitlines() or [""])[0][:80]
+        raise CheckpointError(f"{path}: not a readable checkpoint ({type(error).__name__}: {first}); "
+                              f"{fix}") from None
+    if not isinstance(state, dict):
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (it holds a {type(state).__name__}); {fix}")
+    missing = [key for key in keys if key not in state]
+    if missing:
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (no {', '.join(missing)}); {fix}")
+    if not isinstance(state["model"], str) or state["model"] not in MODELS:
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (model {str(state['model'])[:40]!r} is not one of "
+                              f"{', '.join(MODELS)}); {fix}")
+    kinds = {"epoch": int, "config": dict, "state_dict": dict, "optimizer": dict, "history": list}
+    wrong = [key for key in keys if key in kinds and not isinstance(state[key], kinds[key])]
+    if wrong:
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (malformed {', '.join(wrong)}); {fix}")
+    return state
+
+
+def model_from(state: dict, path: Path, fix: str = USE_FIT) -> NBVNet:
+    """The network a loaded checkpoint names, with its weights; CheckpointError when they do not fit."""
+    config = state["config"]
+    try:
+        model = build_model(state["model"], config.get("dropout_from", "conv3"), config.get("dropout", 0.5))
+    except (ValueError, TypeError) as error:
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (bad settings: {error}); {fix}") from None
+    restore(model, state["state_dict"], path, fix)
+    return model
+
+
+def restore(target: torch.nn.Module | torch.optim.Optimizer, state_dict: dict, path: Path, fix: str = USE_FIT,
+            what: str = "weights") -> None:
+    """``target.load_state_dict(state_dict)``; CheckpointError when they do not fit."""
+    try:
+        target.load_state_dict(state_dict)
+    except (RuntimeError, ValueError, KeyError, TypeError, IndexError) as error:
+        first = (str(error).strip().splitlines() or [""])[0][:80]
+        raise CheckpointError(f"{path}: its {what} do not fit the network it names ({first}); {fix}") from None

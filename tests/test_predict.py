@@ -1,0 +1,209 @@
+"""nbvtrain predict on untrusted input: checkpoints load as plain data only (a pickled object is
+refused and runs nothing), anything else than a checkpoint or a grid in the authors' encoding is
+a one-line error, and inference builds no deprecated torch.jit modules."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+import yaml
+
+from nbvdata.config import to_yaml
+from nbvtrain.checkpoint import CheckpointError, load_checkpoint
+from nbvtrain.cli import main
+from nbvtrain.config import TrainConfig
+from nbvtrain.models import build_model
+from nbvtrain.predict import GridError, Predictor
+from nbvtrain.train import _save
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _checkpoint(path: Path, model: str = "nbvnet-3-3", history: list | None = None) -> Path:
+    torch.manual_seed(0)
+    net = build_model(model)
+    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4)
+    return path
+
+
+class WritesAFile:
+    """Unpickling this calls open(marker, "w"): code from the file would run and leave the marker."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return open, (str(self.marker), "w")
+
+
+def _one_line_error(capsys, *expected: str) -> str:
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert all(text in err for text in expected), err
+    return err
+
+
+def test_checkpoints_are_plain_data(tmp_path):
+    history = [{"epoch": np.int64(1), "train_loss": np.float64(0.5), "val_loss": np.float32(0.25)}]
+    path = _checkpoint(tmp_path / "best.pt", history=history)
+    state = torch.load(path, weights_only=True)  # raises if anything but plain data were in it
+    assert state["history"] == [{"epoch": 1, "train_loss": 0.5, "val_loss": 0.25}]
+    assert all(type(v) in (int, float) for v in state["history"][0].values())
+    assert state["config"]["model"] == "nbvnet-3-3" and isinstance(state["view_radius"], float)
+    assert Predictor(path).name == "nbvnet-3-3"
+
+
+def test_a_pickled_object_is_refused_and_its_code_never_runs(tmp_path, capsys):
+    marker = tmp_path / "ran"
+    state = torch.load(_checkpoint(tmp_path / "good.pt"), weights_only=True)
+    evil = tmp_path / "evil.pt"
+    torch.save(state | {"history": [WritesAFile(marker)]}, evil)
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    with pytest.raises(CheckpointError, match=r"evil\.pt: refused: it holds a pickled Python object \(io\.open\)"):
+        Predictor(evil)
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(evil)]) == 2
+    _one_line_error(capsys, str(evil), "refused", "nbvtrain fit")
+    run = tmp_path / "run"  # the same as a run's last.pt: --resume refuses it too
+    run.mkdir()
+    (run / "config.yaml").write_text(to_yaml(TrainConfig(model="nbvnet-3-3")))
+    evil.rename(run / "last.pt")
+    assert main(["fit", "--resume", "--out", str(run), "--no-progress"]) == 2
+    _one_line_error(capsys, str(run / "last.pt"), "refused", "another --out")
+    assert not marker.exists()
+
+
+def _junk(kind: str, path: Path) -> Path:
+    if kind == "random bytes":
+        path.write_bytes(np.random.default_rng(0).bytes(5000))
+    elif kind == "text":
+        path.write_text("model: nbvnet-4-5\nepochs: 600\n")
+    elif kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "a folder":
+        path.mkdir()
+    elif kind == "a zip":
+        import zipfile
+        with zipfile.ZipFile(path, "w") as archive:
+            archive.writestr("data.pkl", b"not a pickle")
+    elif kind == "a tensor":
+        torch.save(torch.zeros(3), path)
+    elif kind == "no weights":
+        torch.save({"model": "nbvnet-3-3", "epoch": 1, "config": {}}, path)
+    elif kind == "unknown model":
+        state = torch.load(_checkpoint(path), weights_only=True)
+        torch.save(state | {"model": "resnet-50"}, path)
+    elif kind == "other weights":  # nbvnet-3-5's weights under nbvnet-3-3's name
+        state = torch.load(_checkpoint(path, "nbvnet-3-5"), weights_only=True)
+        torch.save(state | {"model": "nbvnet-3-3"}, path)
+    return path  # "missing": nothing written
+
+
+JUNK = ["missing", "random bytes", "text", "empty", "a folder", "a zip", "a tensor", "no weights", "unknown model",
+        "other weights"]
+
+
+@pytest.mark.parametrize("kind", JUNK)
+def test_anything_but_a_checkpoint_is_one_line_exit_2(kind, tmp_path, capsys):
+    junk = _junk(kind, tmp_path / "junk.pt")
+    with pytest.raises(CheckpointError, match=r"junk\.pt: .*; pass a checkpoint written by nbvtrain fit"):
+        Predictor(junk)
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(junk)]) == 2
+    _one_line_error(capsys, f"nbvtrain predict: error: {junk}: ", "nbvtrain fit")
+
+
+@pytest.mark.parametrize("kind", ["random bytes", "empty", "no weights", "other weights"])
+def test_evaluate_and_resume_refuse_a_bad_checkpoint_in_one_line(kind, tmp_path, capsys):
+    junk = _junk(kind, tmp_path / "junk.pt")
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(meshes / "box.stl")
+    assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(junk), "--planners", "regression",
+                 "--out", str(tmp_path / "eval")]) == 2
+    _one_line_error(capsys, f"nbvtrain evaluate: error: {junk}: ")
+    assert not (tmp_path / "eval").exists()
+
+    run = tmp_path / "run"
+    run.mkdir()
+    config = to_yaml(TrainConfig(model="nbvnet-3-3"))
+    (run / "config.yaml").write_text(config)
+    if kind == "other weights":  # a run of nbvnet-3-3 whose last.pt holds nbvnet-3-5's weights
+        state = torch.load(_checkpoint(tmp_path / "other.pt", "nbvnet-3-5"), weights_only=True)
+        torch.save(state | {"model": "nbvnet-3-3", "config": yaml.safe_load(config)}, run / "last.pt")
+    else:
+        junk.rename(run / "last.pt")
+    before = {path.name: path.read_bytes() for path in run.iterdir()}
+    assert main(["fit", "--resume", "--epochs", "5", "--out", str(run), "--no-progress"]) == 2
+    _one_line_error(capsys, f"nbvtrain fit: error: {run / 'last.pt'}: ", "another --out")
+    assert {path.name: path.read_bytes() for path in run.iterdir()} == before  # not even config.yaml rewritten
+
+
+def test_a_device_torch_lacks_is_one_line(tmp_path, capsys):
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(checkpoint), "--device", "gpu7"]) == 2
+    _one_line_error(capsys, "device 'gpu7': ", "use cpu")
+
+
+def test_load_checkpoint_is_the_one_loader(tmp_path):
+    """Predictor, evaluate's planners and fit --resume all read through load_checkpoint."""
+    for module in ("predict", "train", "planners", "evaluate", "cli"):
+        assert "torch.load(" not in (ROOT / "nbvtrain" / f"{module}.py").read_text()
+    state = load_checkpoint(_checkpoint(tmp_path / "best.pt"))
+    assert state["model"] == "nbvnet-3-3" and state["epoch"] == 0
+
+
+BAD_GRIDS = {
+    "all NaN": (np.full((32, 32, 32), np.nan, dtype=np.float32), r"holds 32768 NaN values"),
+    "one NaN": (np.where(np.arange(32 ** 3) == 5, np.nan, 0.5).reshape(32, 32, 32), r"holds 1 NaN values"),
+    "7.0": (np.full((32, 32, 32), 7.0), r"values in \[7, 7\], outside \[0, 1\]"),
+    "negative": (np.full((32, 32, 32), -0.1), r"values in \[-0.1, -0.1\], outside \[0, 1\]"),
+    "integers": (np.ones((32, 32, 32), dtype=np.int64), r"dtype int64, expected float occupancy probabilities"),
+    "booleans": (np.ones((32, 32, 32), dtype=bool), r"dtype bool, expected float"),
+    "16^3": (np.full((16, 16, 16), 0.5), r"shape \(16, 16, 16\), expected \(32, 32, 32\) or \(B, 32, 32, 32\)"),
+    "flat": (np.full(32 ** 3, 0.5), r"shape \(32768,\)"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_GRIDS)
+def test_grids_outside_the_authors_encoding_are_refused(case, tmp_path, capsys):
+    grid, message = BAD_GRIDS[case]
+    predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
+    with pytest.raises(GridError, match=message):  # a ValueError
+        predictor.predict(grid)
+    if grid.ndim == 3:  # (the command line takes a flat row of 32^3 values too, as the authors store them)
+        np.save(tmp_path / "grid.npy", grid)
+        assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(tmp_path / "best.pt")]) == 2
+        _one_line_error(capsys, f"nbvtrain predict: error: {tmp_path / 'grid.npy'}: ")
+    assert isinstance(GridError("x"), ValueError)
+
+
+def test_the_edges_of_the_encoding_are_accepted(tmp_path):
+    predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
+    grids = np.stack([np.zeros((32, 32, 32)), np.ones((32, 32, 32)), np.full((32, 32, 32), 0.5)]).astype(np.float16)
+    assert len(predictor.predict(grids)) == 3
+
+
+def test_predict_builds_no_torch_jit_and_warns_nothing(tmp_path):
+    """torch.utils.mkldnn wraps each convolution in a deprecated torch.jit script module; the
+    oneDNN path calls the same convolution directly, with the same outputs."""
+    checkpoint = _checkpoint(tmp_path / "best.pt", "nbvnet-4-5")
+    grid = np.random.default_rng(0).choice(np.array([0.4, 0.5, 0.7], dtype=np.float32), size=(32, 32, 32))
+    np.save(tmp_path / "grid.npy", grid)
+    script = ("import sys; from nbvtrain.cli import main; code = main(sys.argv[1:]); "
+              "assert 'torch.utils.mkldnn' not in sys.modules, 'torch.jit modules built'; sys.exit(code)")
+    done = subprocess.run([sys.executable, "-W", "error", "-c", script, "predict", str(tmp_path / "grid.npy"),
+                           "--checkpoint", str(checkpoint)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    predictor = Predictor(checkpoint)
+    assert torch.backends.mkldnn.is_available() == (predictor._features is not predictor.model.features)
+    with torch.inference_mode():
+        grids = torch.from_numpy(grid)[None, None]
+        torch.testing.assert_close(predictor._features(grids), predictor.model.features(grids), atol=1e-6, rtol=0)
