@@ -3,12 +3,20 @@
 open3d's Linux wheel links ``libusb-1.0.so.0`` (for its RealSense support) but does not ship it,
 so ``import open3d`` fails on a bare machine. The ``libusb-package`` wheel carries the library;
 loading it with RTLD_GLOBAL first lets the dynamic linker resolve open3d's dependency.
+
+nbvdata imports open3d only through this module. A script that imports open3d itself, before
+nbvdata, must import this module first (``from nbvdata._open3d import open3d``): nothing runs
+before an ``import open3d`` short of a .pth file or LD_LIBRARY_PATH, which a wheel should not set.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+
+HINT = ("nbvdata loads the libusb-1.0 that open3d links from the libusb-package wheel: pip install open3d "
+        "libusb-package (or install the system's: apt install libusb-1.0-0); a script that imports open3d "
+        "itself must first run `from nbvdata._open3d import open3d` (or `import nbvdata._open3d`)")
 
 
 def _preload_libusb() -> None:
@@ -25,6 +33,9 @@ def _preload_libusb() -> None:
 
 _preload_libusb()
 
-import open3d  # noqa: E402  (must follow the preload)
+try:
+    import open3d  # noqa: E402  (must follow the preload)
+except ImportError as error:
+    raise ImportError(f"cannot import open3d ({error}); {HINT}") from error
 
 __all__ = ["open3d"]

@@ -23,10 +23,10 @@ import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.config import SimConfig  # noqa: E402
-from nbvdata.manifest import write_atomic  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
+from nbvdata.text import plural  # noqa: E402
 
 
 def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> Path:
@@ -38,10 +38,21 @@ def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> P
         present = set(first.file)
     png = manifest_path.with_suffix(".png")
     plot_label_spread(views, summary.nbv_counts, png, f"{content['name']} {content['version']}: "
-                      f"NBV labels of {summary.samples:,} samples over {len(views)} candidate views")
+                      f"NBV labels of {plural(summary.samples, 'sample', spec=',')} over "
+                      f"{plural(len(views), 'candidate view')}")
     card = manifest_path.with_suffix(".md")
     write_atomic(card, card_text(content, summary, present, manifest_path))
     return card
+
+
+def write_atomic(path: Path, data: str | bytes) -> None:
+    """Write ``path`` whole or not at all: to a temporary name, then rename."""
+    partial = path.with_name(path.name + ".partial")
+    if isinstance(data, str):
+        partial.write_text(data, encoding="utf-8")
+    else:
+        partial.write_bytes(data)
+    os.replace(partial, path)
 
 
 def plot_label_spread(views: np.ndarray, counts: Counter, out: Path, title: str) -> None:
@@ -118,8 +129,8 @@ def card_text(content: dict, summary: Summary, present: set[str], manifest_path:
               "```python", *_snippet(manifest), "```", "",
               f"`grid` is sample 0's {content['config'].get('grid', {}).get('size', 32)}^3 occupancy "
               "probabilities (float32, 0.5 = unknown), `nbv` the unit vector from the object's centre to "
-              f"its next-best-view. The version's {totals['samples']:,} samples are the shards' rows in "
-              "manifest order; the split ranges index them in that order."]
+              f"its next-best-view. The version's {plural(totals['samples'], 'sample', spec=',')} are the shards' "
+              "rows in manifest order; the split ranges index them in that order."]
     return "\n".join(lines) + "\n"
 
 
@@ -143,16 +154,18 @@ def schema_rows() -> list[list[str]]:
 
 def _what(content: dict, view_count: int) -> str:
     totals, megabytes = content["totals"], content["totals"]["bytes"] / 2 ** 20
-    files = f"{totals['shards']} HDF5 shards ({megabytes:.1f} MB)"
+    files = f"{plural(totals['shards'], 'HDF5 shard')} ({megabytes:.1f} MB)"
     if content["source"] != GENERATED:
         return (f"Reconstruction states imported by `nbvdata import-legacy` from {content['source']}: "
-                f"{totals['samples']:,} samples ({totals['runs']:,} runs, derived from the row order) in {files}, "
-                f"each an occupancy grid labelled with its next-best-view, one of {view_count} views.")
-    return (f"Reconstruction states of {totals['meshes']} objects, each labelled with its ground-truth "
-            f"next-best-view (NBV): {totals['samples']:,} samples from {totals['runs']:,} simulated "
-            f"reconstructions, in {files}. A sample is the probabilistic occupancy grid of a partly scanned "
-            f"object and the one of {view_count} candidate views that an exhaustive search finds best: the "
-            "view that adds the most surface while overlapping enough of what is already seen.")
+                f"{plural(totals['samples'], 'sample', spec=',')} ({plural(totals['runs'], 'run', spec=',')}, "
+                f"derived from the row order) in {files}, each an occupancy grid labelled with its next-best-view, "
+                f"one of {plural(view_count, 'view')}.")
+    return (f"Reconstruction states of {plural(totals['meshes'], 'object')}, each labelled with its ground-truth "
+            f"next-best-view (NBV): {plural(totals['samples'], 'sample', spec=',')} from "
+            f"{plural(totals['runs'], 'simulated reconstruction', spec=',')}, in {files}. A sample is the "
+            "probabilistic occupancy grid of a partly scanned object and the one of "
+            f"{plural(view_count, 'candidate view')} that an exhaustive search finds best: the view that adds the "
+            "most surface while overlapping enough of what is already seen.")
 
 
 def _made(content: dict) -> list[str]:
@@ -164,13 +177,14 @@ def _made(content: dict) -> list[str]:
         return [f"- {config.get('note', content['source'])}", published]
     views, sensor, grid = config["views"], config["sensor"], config["grid"]
     episode, oracle = config["episode"], config["oracle"]
-    lines = [f"- Simulated by `nbvdata generate`: {views['count']} candidate views on the {views['layout']} of "
-             f"radius {views['radius']} m; a {sensor['width']}x{sensor['height']} range sensor (noise "
-             f"{sensor['noise_std']} m); a {grid['size']}^3 occupancy grid of {grid['extent']} m with OctoMap's "
-             f"update rule; {episode['runs_per_mesh']} runs per mesh from seeded random start views, at most "
-             f"{episode['max_scans']} scans, stopping when no view adds {100 * episode['min_gain']:g} % of the "
-             f"observable surface; every state labelled by exhaustive search over the views that overlap at "
-             f"least {100 * oracle['min_overlap']:g} % of what is already covered; global seed {episode['seed']}.",
+    lines = [f"- Simulated by `nbvdata generate`: {plural(views['count'], 'candidate view')} on the "
+             f"{views['layout']} of radius {views['radius']} m; a {sensor['width']}x{sensor['height']} range "
+             f"sensor (noise {sensor['noise_std']} m); a {grid['size']}^3 occupancy grid of {grid['extent']} m "
+             f"with OctoMap's update rule; {plural(episode['runs_per_mesh'], 'run')} per mesh from seeded random "
+             f"start views, at most {plural(episode['max_scans'], 'scan')}, stopping when no view adds "
+             f"{100 * episode['min_gain']:g} % of the observable surface; every state labelled by exhaustive "
+             f"search over the views that overlap at least {100 * oracle['min_overlap']:g} % of what is already "
+             f"covered; global seed {episode['seed']}.",
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
     command = _reproduce(content)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "
@@ -224,7 +238,7 @@ def _coverage(summary: Summary) -> list[str]:
         return ["Coverage was not recorded in these shards."]
     final = 100 * np.array(final)
     return [f"Observable surface covered at the end of a run: mean {final.mean():.1f} %, median "
-            f"{np.median(final):.1f} %, range {final.min():.1f}-{final.max():.1f} % over {len(final)} runs."]
+            f"{np.median(final):.1f} %, range {final.min():.1f}-{final.max():.1f} % over {plural(len(final), 'run')}."]
 
 
 def _snippet(manifest: str) -> list[str]:

@@ -23,6 +23,28 @@ from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
+from nbvdata.text import plural
+
+
+DESCRIPTION = """\
+nbvdata makes datasets for learned next-best-view (NBV) planning: a simulated range sensor
+scans a mesh from candidate views on a sphere, each partial reconstruction (an occupancy grid,
+32^3 by default) is labelled with the view an exhaustive search finds best, and the labelled
+states are written to HDF5 shards.
+
+The usual workflow: generate -> inspect -> publish -> verify, then `nbvtrain fit` trains on the
+published version."""
+
+EPILOG = """\
+example (the 6 built-in shapes, 20 runs each, into 6 shards):
+  nbvdata generate --out nbv_dataset
+  nbvdata inspect nbv_dataset
+  nbvdata publish nbv_dataset --name my-shapes --version 1.0.0
+  nbvdata verify manifests/my-shapes-1.0.0.json
+  nbvtrain fit manifests/my-shapes-1.0.0.json --split mesh --epochs 2
+
+Your meshes: nbvdata generate --meshes DIR (obj, ply, off, stl, glb, gltf; searched recursively).
+'nbvdata COMMAND --help' lists a command's options."""
 
 
 class UsageError(Exception):
@@ -52,7 +74,8 @@ def _parse_indices(text: str, count: int) -> list[int]:
         raise UsageError(f"--views {text!r}: expected comma-separated view indices, e.g. --views 0,120,340") from None
     bad = [i for i in indices if not 0 <= i < count]
     if bad:
-        raise UsageError(f"--views: indices {bad} out of range; the view set has {count} views (0..{count - 1})")
+        raise UsageError(f"--views: indices {bad} out of range; the view set has {plural(count, 'view')} "
+                         f"(0..{count - 1})")
     return indices
 
 
@@ -68,7 +91,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     grid = scene.new_grid()
     views = rng.choice(len(scene.views), size=min(args.scans, len(scene.views)), replace=False)
     covered = np.zeros(len(scene.coverage.points), dtype=bool)
-    print(f"{obj.source}: {len(obj.mesh.faces)} faces, {len(scene.views)} candidate views, "
+    print(f"{obj.source}: {plural(len(obj.mesh.faces), 'face')}, {plural(len(scene.views), 'candidate view')}, "
           f"{int(scene.coverage.observable.sum())}/{len(scene.coverage.points)} reference points observable")
     for step, view in enumerate(views, start=1):
         start = time.perf_counter()
@@ -82,7 +105,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
               f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
     out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
-                       title=f"{obj.source}: {len(views)} scans")
+                       title=f"{obj.source}: {plural(len(views), 'scan')}", labels=("last scan", "earlier scans"))
     print(f"wrote {out}")
     return 0
 
@@ -102,8 +125,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
         sources, failures = mesh_sources(args.meshes)
     units = len(sources) * -(-config.episode.runs_per_mesh // (config.generate.runs_per_shard
                                                                or config.episode.runs_per_mesh))
-    print(f"nbvdata generate: {len(sources)} meshes x {config.episode.runs_per_mesh} runs "
-          f"({units} shards) -> {args.out}")
+    print(f"nbvdata generate: {plural(len(sources), 'mesh')} x {plural(config.episode.runs_per_mesh, 'run')} "
+          f"({plural(units, 'shard')}) -> {args.out}")
     try:
         report = generate(sources, args.out, config, failures, show_progress=args.progress)
     except KeyboardInterrupt:
@@ -112,15 +135,15 @@ def cmd_generate(args: argparse.Namespace) -> int:
         return 130
     rate = report.samples / report.seconds if report.seconds else 0.0
     others = len(report.others_done) + len(report.others_running)
-    print(f"wrote {report.samples} samples in {len(report.done)} shards to {args.out} in "
-          f"{report.seconds:.1f} s ({rate:.1f} samples/s)"
-          + (f"; {len(report.skipped)} shards were already there" if report.skipped else "")
-          + (f"; {others} shards were left to another process" if others else ""))
+    print(f"wrote {plural(report.samples, 'sample')} in {plural(len(report.done), 'shard')} to {args.out} in "
+          f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped)
+          + (f"; {plural(others, 'shard')} {'was' if others == 1 else 'were'} left to another process"
+             if others else ""))
     if report.others_running:
-        print(f"nbvdata generate: another process is still writing {len(report.others_running)} shards into "
-              f"{args.out}; run the same command again when it has finished to check that every shard is there")
+        print(f"nbvdata generate: another process is still writing {plural(len(report.others_running), 'shard')} "
+              f"into {args.out}; run the same command again when it has finished to check that every shard is there")
     if report.failures:
-        print(f"nbvdata generate: {len(report.failures)} meshes failed, listed in "
+        print(f"nbvdata generate: {plural(len(report.failures), 'mesh')} failed, listed in "
               f"{args.out / FAILURES_FILE}", file=sys.stderr)
         return 1
     return 0
@@ -143,26 +166,37 @@ def cmd_import_legacy(args: argparse.Namespace) -> int:
         return 130
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     rate = report.rows / report.seconds if report.seconds else 0.0
-    print(f"imported {report.rows} rows into {len(report.written)} shards in {args.out} "
-          f"({len(report.run_lengths)} runs) in {report.seconds:.1f} s ({rate:.0f} rows/s), "
-          f"peak memory {peak:.0f} MiB"
-          + (f"; {len(report.skipped)} shards were already there" if report.skipped else ""))
+    print(f"imported {plural(report.rows, 'row')} into {plural(len(report.written), 'shard')} in {args.out} "
+          f"({plural(len(report.run_lengths), 'run')}) in {report.seconds:.1f} s ({rate:.0f} rows/s), "
+          f"peak memory {peak:.0f} MiB" + _already_there(report.skipped))
     return 0
 
 
+def _already_there(skipped: list) -> str:
+    """"; 3 shards were already there" after a resumed job's report, or nothing."""
+    if not skipped:
+        return ""
+    return f"; {plural(len(skipped), 'shard')} {'was' if len(skipped) == 1 else 'were'} already there"
+
+
 def cmd_inspect(args: argparse.Namespace) -> int:
-    """Print samples per mesh, coverage statistics and the spread of labels over the views."""
+    """Print samples per mesh, coverage statistics and the spread of labels over the views; an
+    unreadable shard is an error, reported before anything is printed."""
     from nbvdata.summary import format_summary, summarise
 
     paths = shard_files(args.shards)
     summary = summarise(paths)
+    if summary.problems:
+        others = len(summary.problems) - 1
+        raise ShardError(summary.problems[0] + (f" (and {plural(others, 'other unreadable shard')})"
+                                                if others else ""))
     print(format_summary(summary, top=args.top))
-    if args.by_step and not summary.problems:
+    if args.by_step:
         from nbvdata.gridstats import by_step, format_by_step
 
         print("\nGrids by reconstruction step (means; span: median extent of the occupied voxels):")
         print(format_by_step(by_step(paths)))
-    return 1 if summary.problems else 0
+    return 0
 
 
 def cmd_publish(args: argparse.Namespace) -> int:
@@ -177,7 +211,8 @@ def cmd_publish(args: argparse.Namespace) -> int:
         print(f"{label}: already published, identical ({result.path}); nothing written")
         return 0
     content, totals = result.content, result.content["totals"]
-    print(f"published {label}: {totals['shards']} shards, {totals['samples']} samples, {totals['meshes']} meshes, "
+    print(f"published {label}: {plural(totals['shards'], 'shard')}, {plural(totals['samples'], 'sample')}, "
+          f"{plural(totals['meshes'], 'mesh')}, "
           f"{totals['bytes'] / 2 ** 20:.1f} MB, in {time.perf_counter() - started:.1f} s")
     print(f"  manifest {result.path}")
     print(f"  card     {result.path.with_suffix('.md')} (+ {result.path.with_suffix('.png').name})")
@@ -185,7 +220,7 @@ def cmd_publish(args: argparse.Namespace) -> int:
         print(f"  {kind} split: {_split_counts(content['splits'][kind])}")
     unrecorded = sum(mesh["license"] == NOT_RECORDED for mesh in content["meshes"])
     if unrecorded:
-        print(f"nbvdata publish: the licenses of {unrecorded} meshes are not recorded: pass --meshes DIR, the "
+        print(f"nbvdata publish: no license recorded for {plural(unrecorded, 'mesh')}: pass --meshes DIR, the "
               "folder whose MESHES.tsv lists them, with the next version", file=sys.stderr)
     return 0
 
@@ -199,7 +234,7 @@ def _split_counts(split: dict) -> str:
         if part in split:
             meshes = split[part].get("meshes")
             counts.append(f"{part} {split[part]['samples']}" if meshes is None else
-                          f"{part} {split[part]['samples']} ({len(meshes)} mesh{'' if len(meshes) == 1 else 'es'})")
+                          f"{part} {split[part]['samples']} ({plural(len(meshes), 'mesh')})")
     return ", ".join(counts)
 
 
@@ -209,7 +244,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
     result = verify(args.manifest, args.root, by_content=args.content)
     published, totals = result.published, result.published.content["totals"]
-    print(f"{args.manifest}: {published.label}, {totals['shards']} shards, {totals['samples']} samples, "
+    print(f"{args.manifest}: {published.label}, {plural(totals['shards'], 'shard')}, "
+          f"{plural(totals['samples'], 'sample')}, "
           f"in {os.path.normpath(published.root)}")
     for problem in result.problems:
         print(problem)
@@ -217,7 +253,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
         kinds = {problem.kind for problem in result.problems}
         fixes = (["restore the files named from a good copy"] if kinds - {"extra"} else []) + (
             ["move the extra ones away (or publish them as a new version)"] if "extra" in kinds else [])
-        print(f"{len(result.problems)} problems ({result.seconds:.1f} s): this is not the published "
+        print(f"{plural(len(result.problems), 'problem')} ({result.seconds:.1f} s): this is not the published "
               f"{published.label}; {' and '.join(fixes)}")
         return 1
     same = "with the same content" if args.content else "unchanged"
@@ -252,7 +288,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     highlight = None
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views))[0]
-    out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title)
+    out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title,
+                       labels=("--highlight view", ""))
     print(f"wrote {out}")
     return 0
 
@@ -265,7 +302,8 @@ def _show_sample(args: argparse.Namespace) -> int:
 
     with Shard(args.grid) as shard:
         if not 0 <= args.index < len(shard):
-            raise UsageError(f"--index {args.index}: {args.grid} holds {len(shard)} samples (0..{len(shard) - 1})")
+            raise UsageError(f"--index {args.index}: {args.grid} holds {plural(len(shard), 'sample')} "
+                             f"(0..{len(shard) - 1})")
         i = args.index
         probabilities = shard.grids(i)
         positions = shard["view_positions"]
@@ -302,23 +340,16 @@ def _load_grid_file(path: Path, size: int) -> np.ndarray:
     except Exception as error:
         raise UsageError(f"{path}: not a readable .npy array ({type(error).__name__})") from None
     if array.size != size ** 3:
-        raise UsageError(f"{path}: holds {array.size} values, a {size}^3 grid needs {size ** 3}")
+        raise UsageError(f"{path}: holds {plural(array.size, 'value')}, a {size}^3 grid needs {size ** 3}")
     return array.reshape(size, size, size).astype(np.float32)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvdata", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"nbvdata {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
-    _add_object_options(demo)
-    _add_config_options(demo)
-    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
-    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
-    demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
-    demo.set_defaults(func=cmd_demo)
+    sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
 
     gen = sub.add_parser("generate", help="simulate labelled reconstructions of meshes into HDF5 shards")
     gen.add_argument("--meshes", type=Path, help="folder of mesh files (searched recursively), one mesh "
@@ -334,17 +365,6 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                      help="show a progress bar (default: on a terminal)")
     gen.set_defaults(func=cmd_generate)
-
-    legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
-    legacy.add_argument("--volumes", type=Path, required=True,
-                        help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
-    legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
-    legacy.add_argument("--out", type=Path, required=True, help="output folder")
-    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
-    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
-    legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                        help="show a progress bar (default: on a terminal)")
-    legacy.set_defaults(func=cmd_import_legacy)
 
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
@@ -393,6 +413,25 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--seed", type=int, default=0, help="seed for sensor noise")
     show.add_argument("--out", type=Path, default=Path("nbv_show.png"), help="PNG to write")
     show.set_defaults(func=cmd_show)
+
+    demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
+    _add_object_options(demo)
+    _add_config_options(demo)
+    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
+    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
+    demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
+    demo.set_defaults(func=cmd_demo)
+
+    legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
+    legacy.add_argument("--volumes", type=Path, required=True,
+                        help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
+    legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
+    legacy.add_argument("--out", type=Path, required=True, help="output folder")
+    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
+    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
+    legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="show a progress bar (default: on a terminal)")
+    legacy.set_defaults(func=cmd_import_legacy)
     return parser
 
 

@@ -35,6 +35,7 @@ from numpy.lib import format as npy_format
 
 from nbvdata import __version__
 from nbvdata.shards import PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
+from nbvdata.text import plural
 
 GRID_SIZE = 32
 ROW = GRID_SIZE ** 3
@@ -123,8 +124,9 @@ class NpyRows:
                 raise LegacyError(f"{self.label}: corrupt data after row {self._done} ({error}): download it "
                                   "again") from None
             if not piece:
-                raise LegacyError(f"{self.label}: truncated: the header promises {self.rows} rows, the data end "
-                                  f"in row {self._done + filled // (self.columns * 8)}: download or unpack it again")
+                raise LegacyError(f"{self.label}: truncated: the header promises {plural(self.rows, 'row')}, the "
+                                  f"data end in row {self._done + filled // (self.columns * 8)}: download or unpack "
+                                  "it again")
             view[filled:filled + len(piece)] = piece
             filled += len(piece)
         self._done += count
@@ -278,8 +280,8 @@ def import_legacy(volumes: str | Path, poses: str | Path, out_dir: str | Path, r
         pose_rows = stream.read(stream.rows)
     with NpyRows(volumes, ROW) as grids:
         if grids.rows != len(pose_rows):
-            raise LegacyError(f"{grids.label} holds {grids.rows} grids but {Path(poses)} holds {len(pose_rows)} "
-                              "poses: pass the volumes and poses of the same dataset")
+            raise LegacyError(f"{grids.label} holds {plural(grids.rows, 'grid')} but {Path(poses)} holds "
+                              f"{plural(len(pose_rows), 'pose')}: pass the volumes and poses of the same dataset")
         total = grids.rows if limit is None else min(limit, grids.rows)
         views, nbv_index = distinct_views(pose_rows[:, :3])
         config = _config(views)

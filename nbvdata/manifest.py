@@ -465,7 +465,7 @@ def publish(shards_dir: str | Path, name: str, version: str, manifests_dir: str 
         raise ManifestError(f"{name} {version} is already published ({path}) with other {what}; published "
                             f"versions are immutable: publish this as {next_version(manifests_dir, name, level)} "
                             f"({RULES[level]})")
-    from nbvdata.card import write_card
+    from nbvdata.card import write_atomic, write_card  # card imports matplotlib: only when publishing
 
     manifests_dir.mkdir(parents=True, exist_ok=True)
     write_card(content, path, contents.paths)
@@ -541,13 +541,3 @@ def dumps(content: dict) -> str:
 def _normalised(content: dict) -> dict:
     """The content as it reads back from JSON (lists, not tuples), so it compares with a read one."""
     return json.loads(json.dumps(content))
-
-
-def write_atomic(path: Path, data: str | bytes) -> None:
-    """Write ``path`` whole or not at all: to a temporary name, then rename."""
-    partial = path.with_name(path.name + ".partial")
-    if isinstance(data, str):
-        partial.write_text(data, encoding="utf-8")
-    else:
-        partial.write_bytes(data)
-    os.replace(partial, path)

@@ -1,7 +1,8 @@
 """Headless pictures of a reconstruction state, like the paper's Fig. 1.
 
 Occupied voxels are blue, unknown voxels yellow, candidate views grey dots, and highlighted
-views arrows pointing at the object centre (red for the chosen one, orange for others).
+views arrows pointing at the object centre (red for the chosen one, orange for others); a legend
+says so, with the voxel counts. The PNG is cropped to what is drawn.
 """
 
 from __future__ import annotations
@@ -14,9 +15,16 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from nbvdata.views import ViewSet  # noqa: E402
+
+OCCUPIED = (0.15, 0.35, 0.85, 1.0)
+UNKNOWN = (1.0, 0.85, 0.1, 0.25)
+MARGIN_PX = 8  # blank pixels kept around the drawing, the title and the legend
 
 
 def render_state(
@@ -27,24 +35,77 @@ def render_state(
     highlight: int | None = None,
     others: Sequence[int] = (),
     title: str = "",
+    labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
 ) -> Path:
-    """Write a PNG of a grid state and the view sphere; returns the path written.
+    """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
+
+    The arguments are those of ``draw_state``.
+    """
+    fig = draw_state(probabilities, extent, views, highlight, others, title, labels)
+    fig.canvas.draw()
+    pixels = np.asarray(fig.canvas.buffer_rgba())
+    height = pixels.shape[0]
+    texts = [artist.get_window_extent() for artist in fig.texts + fig.legends]
+    plt.close(fig)
+    pixels = tighten(pixels, [(height - int(np.ceil(box.y1)), height - int(box.y0)) for box in texts])
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    plt.imsave(out, pixels, format="png")
+    return out
+
+
+def tighten(pixels: np.ndarray, texts: Sequence[tuple[int, int]] = (), margin: int = MARGIN_PX) -> np.ndarray:
+    """An (H, W, 4) uint8 picture cut to its drawing and its texts, each with ``margin`` blank
+    pixels around it: the blank border and the blank rows between them go.
+
+    texts : (first, last) rows of each text block (title, legend); the drawing is all other ink,
+    kept whole from its first row to its last.
+
+    A 3D axes reserves room for the corners of its rotated bounding box, so a drawing of the view
+    sphere left about a third of the figure blank; cropping the pixels removes it whatever the view.
+    """
+    ink = (pixels[..., :3] < 250).any(axis=2)
+    cols = np.flatnonzero(ink.any(axis=0))
+    if not len(cols):
+        return pixels
+    in_text = np.zeros(len(ink), dtype=bool)
+    for first, last in texts:
+        in_text[max(first, 0):last + 1] = True
+    drawing = np.flatnonzero(ink.any(axis=1) & ~in_text)
+    blocks = list(texts) + ([(drawing[0], drawing[-1])] if len(drawing) else [])
+    keep = np.zeros(len(ink), dtype=bool)
+    for first, last in blocks:
+        keep[max(first - margin, 0):last + margin + 1] = True
+    return pixels[keep][:, max(cols[0] - margin, 0):cols[-1] + margin + 1]
+
+
+def draw_state(
+    probabilities: np.ndarray,
+    extent: float,
+    views: ViewSet | None = None,
+    highlight: int | None = None,
+    others: Sequence[int] = (),
+    title: str = "",
+    labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
+) -> Figure:
+    """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
     probabilities : (n, n, n) float32 in the authors' encoding (0.5 = unknown)
     extent : side of the grid cube in metres (to place the views in grid units)
     highlight : index into ``views`` of the view drawn as a red arrow
     others : indices drawn as orange arrows (e.g. the runner-up candidates)
+    labels : what the red and the orange arrows are, for the legend
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
     occupied = probabilities > 0.5
     unknown = probabilities == 0.5
     colors = np.zeros(probabilities.shape + (4,))
-    colors[unknown] = (1.0, 0.85, 0.1, 0.25)
-    colors[occupied] = (0.15, 0.35, 0.85, 1.0)
+    colors[unknown] = UNKNOWN
+    colors[occupied] = OCCUPIED
 
     fig = plt.figure(figsize=(7, 7), dpi=110)
-    ax = fig.add_subplot(projection="3d")
+    ax = fig.add_axes((0, 0, 1, 1), projection="3d")
     quads, face_colors = exposed_faces(occupied | unknown, colors)
     ax.add_collection3d(Poly3DCollection(quads, facecolors=face_colors, edgecolors=(0, 0, 0, 0.08),
                                          linewidths=0.2))
@@ -53,29 +114,40 @@ def render_state(
     def to_grid(points: np.ndarray) -> np.ndarray:
         return np.asarray(points) * scale + n / 2
 
+    legend = [Patch(facecolor=OCCUPIED, edgecolor="0.3", label=f"occupied ({occupied.sum()} voxels)"),
+              Patch(facecolor=UNKNOWN[:3] + (0.5,), edgecolor="0.3", label=f"unknown ({unknown.sum()})"),
+              Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
+    upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
         positions = to_grid(views.positions)
         ax.scatter(*positions.T, s=3, c="0.55", depthshade=False)
-        for index, color in [(i, "orange") for i in others] + ([(highlight, "red")] if highlight is not None else []):
+        legend.append(Line2D([], [], linestyle="", marker="o", markersize=4, color="0.55",
+                             label=f"candidate views ({len(positions)})"))
+        arrows = [(i, "orange") for i in others] + ([(highlight, "red")] if highlight is not None else [])
+        for index, color in arrows:
             start = positions[index]
             arrow = (to_grid(np.zeros(3)) - start) * 0.35
             ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3)
+        if highlight is not None:
+            legend.append(Line2D([], [], color="red", linewidth=2.5, label=f"{labels[0]} (view {highlight})"))
+        if len(others):
+            legend.append(Line2D([], [], color="orange", linewidth=2.5, label=labels[1]))
         reach = np.abs(positions - n / 2).max()
         low, high = n / 2 - reach, n / 2 + reach
     else:
         low, high = 0, n
+    bottom = 0 if upper else low  # a dome of views: down to the grid's floor
     ax.set_xlim(low, high)
     ax.set_ylim(low, high)
-    ax.set_zlim(low if views is None or views.positions[:, 2].min() < 0 else 0, high)
-    ax.set_box_aspect((1, 1, 1) if views is None or views.positions[:, 2].min() < 0 else (2, 2, 1))
+    ax.set_zlim(bottom, high)
+    # equal scale on every axis; zoom: the 3D axes leaves room for its box's corners, which the
+    # sphere of views does not reach (tighten crops what stays blank)
+    ax.set_box_aspect((high - low, high - low, high - bottom), zoom=1.3 if views is not None else 1.0)
     ax.set_axis_off()
-    counts = f"occupied {occupied.sum()}, unknown {unknown.sum()}, free {(probabilities < 0.5).sum()}"
-    ax.set_title(f"{title}\n{counts}" if title else counts, fontsize=10)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, bbox_inches="tight")
-    plt.close(fig)
-    return out
+    fig.legend(handles=legend, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    if title:
+        fig.text(0.5, 0.99, title, ha="center", va="top", fontsize=10)
+    return fig
 
 
 # Unit square corners (u, v) of a voxel face, in drawing order.

@@ -53,6 +53,7 @@ import numpy as np
 import yaml
 
 from nbvdata.grid import probability
+from nbvdata.text import plural
 
 SCHEMA_VERSION = 1
 PARTIAL_SUFFIX = ".partial"
@@ -208,7 +209,7 @@ class Shard:
         samples = int(attrs["samples"])
         wrong = [name for name in PER_SAMPLE if name in self.file and len(self.file[name]) != samples]
         if wrong:
-            raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {samples} samples: "
+            raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {plural(samples, 'sample')}: "
                              "delete it and run nbvdata generate again")
         return ShardInfo(self.path, samples, yaml.safe_load(attrs["config"]), json.loads(attrs["meshes"]),
                          tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]),

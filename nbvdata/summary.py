@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata.shards import Shard, ShardError
+from nbvdata.text import plural
 
 
 @dataclass
@@ -105,8 +106,8 @@ def summarise(paths: list[Path]) -> Summary:
 
 def format_summary(summary: Summary, top: int = 10) -> str:
     """The summary as the text ``nbvdata inspect`` prints."""
-    lines = [f"{summary.shards} shards, {summary.samples} samples, {len(summary.meshes)} meshes, "
-             f"{summary.view_count} candidate views"]
+    lines = [f"{plural(summary.shards, 'shard')}, {plural(summary.samples, 'sample')}, "
+             f"{plural(len(summary.meshes), 'mesh')}, {plural(summary.view_count, 'candidate view')}"]
     if len(summary.configs) > 1:
         lines.append(f"warning: the shards were made with {len(summary.configs)} different settings")
     lines.append("")
@@ -121,7 +122,9 @@ def format_summary(summary: Summary, top: int = 10) -> str:
         counts = np.array(list(summary.nbv_counts.values()), dtype=np.float64)
         share = counts / counts.sum()
         entropy = float(-(share * np.log(share)).sum())
-        lines += ["", f"labels: {len(summary.nbv_counts)} of {summary.view_count} views are ever the NBV; "
+        used = len(summary.nbv_counts)
+        lines += ["", f"labels: {used} of {plural(summary.view_count, 'view')} {'is' if used == 1 else 'are'} "
+                  "ever the NBV; "
                   f"label entropy {entropy:.2f} nats (uniform over the used views: {np.log(len(counts)):.2f})",
                   f"gain of the NBV: median {_median(summary.best_gain, '.2f')} of the observable surface; "
                   f"valid views per state: median {_median(summary.valid_share, '.0f')}",

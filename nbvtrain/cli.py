@@ -17,6 +17,7 @@ import numpy as np
 
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
+from nbvdata.text import plural
 from nbvtrain import __version__
 
 INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
@@ -49,7 +50,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     except Interrupted as stop:
         print(f"nbvtrain fit: {stop}; continue with: nbvtrain fit --resume --out {out}", file=sys.stderr)
         return 130
-    print(f"nbvtrain fit: {result.epochs} epochs in {out} ({time.perf_counter() - started:.1f} s); "
+    print(f"nbvtrain fit: {plural(result.epochs, 'epoch')} in {out} ({time.perf_counter() - started:.1f} s); "
           f"best checkpoint {out / 'best.pt'}")
     return 0
 
@@ -67,7 +68,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         if not isinstance(grid, np.ndarray):
             raise ShardError(f"{args.grid}: holds several arrays (.npz), not one grid: np.save one 32^3 grid")
         if grid.size != 32 ** 3:
-            raise ShardError(f"{args.grid}: holds {grid.size} values, a grid has 32^3 = 32768")
+            raise ShardError(f"{args.grid}: holds {plural(grid.size, 'value')}, a grid has 32^3 = 32768")
         grid, source = grid.reshape(32, 32, 32), str(args.grid)
     else:
         with Shard(args.grid) as shard:
@@ -91,7 +92,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     data = load_shards(shard_files(args.shards), args.memory_limit_gb)
     try:
         train_idx, val_idx, split = split_indices(data, args.split, args.val_fraction, args.seed)
-        print(f"{len(train_idx)} training and {len(val_idx)} validation samples ({split['kind']} split, "
+        print(f"{len(train_idx)} training and {plural(len(val_idx), 'validation sample')} ({split['kind']} split, "
               f"seed {args.seed})")
         print(f"{'predictor':20s} {'val MSE':>8s} {'val MAE':>8s} {'angle':>8s} {'gain ratio':>10s} {'seconds':>8s}")
         for name, baseline in BASELINES.items():
@@ -140,8 +141,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              class_checkpoint=args.class_checkpoint)
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
     runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
-    print(f"nbvtrain evaluate: {runs} reconstructions in {report.seconds:.1f} s; wrote {args.out / 'coverage.csv'}, "
-          f"{args.out / 'summary.md'} and {args.out / 'plots'}/")
+    print(f"nbvtrain evaluate: {plural(runs, 'reconstruction')} in {report.seconds:.1f} s; wrote "
+          f"{args.out / 'coverage.csv'}, {args.out / 'summary.md'} and {args.out / 'plots'}/")
     for name, reason in report.failures:
         print(f"nbvtrain evaluate: failed: {name}: {reason}", file=sys.stderr)
     return 1 if report.failures else 0

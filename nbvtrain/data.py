@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbvdata.manifest import Published, random_split
+from nbvdata.manifest import Published, mesh_split, random_split
 from nbvdata.shards import Shard, ShardError
+from nbvdata.text import plural
 
 
 class InMemoryGrids:
@@ -114,7 +115,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
     offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
     total = int(counts.sum())
     if total == 0:
-        raise ShardError(f"the {len(paths)} shards hold no samples: generate more runs or other meshes")
+        raise ShardError(f"no samples in the {plural(len(paths), 'shard')} given: generate more runs or other meshes")
 
     nbytes = total * size ** 3 * np.dtype(code_type).itemsize
     if nbytes <= memory_limit_gb * 2 ** 30:
@@ -146,8 +147,11 @@ def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> 
 
     random: a seeded permutation of the samples, the first ``round(val_fraction * N)`` held out
     (``nbvdata.manifest.random_split``, as in a published version).
-    mesh: a seeded permutation of the mesh ids, the first ``max(1, round(val_fraction * M))``
-    meshes held out whole (object-disjoint).
+    mesh: whole meshes held out, ``max(1, round(val_fraction * M))`` of the M meshes: the
+    published versions' mesh split (``nbvdata.manifest.mesh_split``) with no test part, so with
+    the same seed and fractions its val meshes are the ones a version lists for test, then val.
+    nbvtrain used to draw its own permutation here (seeded [seed, 0x5EED]): a run made with that
+    version holds out other meshes for the same seed (README, Training).
     """
     if kind == "random":
         train, val = random_split(len(data), val_fraction, seed)
@@ -159,11 +163,12 @@ def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> 
     meshes = np.unique(data.mesh_ids)
     if len(meshes) < 2:
         raise ShardError(f"--split mesh needs at least 2 meshes, the shards hold {len(meshes)}: use --split random")
-    rng = np.random.default_rng([seed, 0x5EED])
-    held = rng.permutation(meshes)[: min(max(1, round(val_fraction * len(meshes))), len(meshes) - 1)]
-    is_val = np.isin(data.mesh_ids, held)
+    parts = mesh_split(meshes, val_fraction, 0.0, seed)
+    if isinstance(parts, str):
+        raise ShardError(f"--split mesh --val-fraction {val_fraction}: {parts}; hold out fewer meshes")
+    is_val = np.isin(data.mesh_ids, parts["val"])
     return (np.flatnonzero(~is_val), np.flatnonzero(is_val),
-            {"kind": "mesh", "seed": seed, "val_fraction": val_fraction, "val_meshes": sorted(held.tolist())})
+            {"kind": "mesh", "seed": seed, "val_fraction": val_fraction, "val_meshes": parts["val"].tolist()})
 
 
 def published_split(published: Published, kind: str) -> tuple[np.ndarray, np.ndarray, dict]:

@@ -36,6 +36,7 @@ from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
+from nbvdata.text import plural
 from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
 from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
@@ -105,7 +106,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         history = checkpoint["history"]
     shards, published = _sources(list(shards), manifest, root, out, resume)
     if published is not None:
-        log(f"{published.label}: {len(shards)} shards verified against {published.path} "
+        log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     data = load_shards(shards, config.memory_limit_gb)
     try:
@@ -121,7 +122,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             **({} if published is None else {"manifest": published.identity}),
             "val_indices": val_idx.tolist()}, indent=1))
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
-            f"{len(val_idx)} validation samples ({split['kind']} split) from {len(data.paths)} shards")
+            f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
+            f"{plural(len(data.paths), 'shard')}")
         _train(model, optimizer, data, train_idx, val_idx, config, device, out, history, progress, log)
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
@@ -189,7 +191,7 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
     loss_fn = nn.MSELoss() if model.task == "regression" else nn.CrossEntropyLoss()
     first = len(history) + 1
     if first > config.epochs:
-        log(f"{out} already has {len(history)} epochs (epochs={config.epochs}): nothing to do")
+        log(f"{out} already has {plural(len(history), 'epoch')} (epochs={config.epochs}): nothing to do")
     best = min((row["val_loss"] for row in history), default=math.inf)
     epoch = first - 1
     try:

@@ -134,7 +134,7 @@ def test_a_killed_run_resumes_without_losing_or_repeating_a_unit(tmp_path):
 
     result = subprocess.run(_command(killed, "--no-progress"), capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert f"{len(written)} shards were already there" in result.stdout
+    assert f"; {len(written)} shard" in result.stdout and "already there" in result.stdout
     assert sorted(p.name for p in killed.glob("*.h5")) == total
     assert not list(killed.glob("*.partial"))
     assert all((killed / name).stat().st_mtime_ns == mtime for name, mtime in before.items())  # not rewritten
@@ -176,12 +176,13 @@ def test_bad_meshes_are_reported_and_the_others_go_on(tmp_path, capsys):
     assert len(shards) == 1 and len(Shard(shards[0])) > 0
 
     assert main(argv) == 1  # still failing, and the good shard is kept, not redone
-    assert "1 shards were already there" in capsys.readouterr().out
+    assert "; 1 shard was already there" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("setup, argv, message", [
     ("empty", ["--meshes", "{meshes}"], "no mesh files"),
-    ("missing", ["--meshes", "{tmp}/nowhere"], "not a folder"),
+    ("missing", ["--meshes", "{tmp}/nowhere"], "nowhere: no such file or folder; pass a folder of mesh files, one "
+                "mesh file (.obj, .ply, .off, .stl, .glb, .gltf) or a .txt list"),
     ("done", ["--seed", "5"], "episode.seed"),
     ("none", ["--set", "episode.max_scan=3"], "did you mean 'episode.max_scans'"),
 ])
@@ -214,8 +215,9 @@ def test_inspect_and_show_read_generated_shards(tmp_path, capsys):
     assert "holds" in capsys.readouterr().err
 
     shard.write_bytes(shard.read_bytes()[:500])
-    assert main(["inspect", str(out)]) == 1
-    assert shard.name in capsys.readouterr().out
+    assert main(["inspect", str(out)]) == 2
+    printed = capsys.readouterr()
+    assert shard.name in printed.err and not printed.out  # no table of the other shards first
 
 
 def test_mesh_lists_resolve_relative_to_the_list(tmp_path):
@@ -291,12 +293,12 @@ def test_two_processes_on_one_folder_share_the_units(tmp_path, single_run):
         assert status == 0 and "failed" not in stderr, stdout + stderr
     assert _hashes(out) == single_run  # all 36 shards, each whole and as a single run writes it
     assert not list(out.glob("*.partial")) and not (out / FAILURES_FILE).exists()
-    wrote = [_count(r"in (\d+) shards", stdout) for _, stdout, _ in results]
+    wrote = [_count(r"in (\d+) shards? to", stdout) for _, stdout, _ in results]
     # All 36 exist, so 36 written in all means none was written twice: the units were split.
     assert sum(wrote) == 36 and min(wrote) > 0, wrote
     for (_, stdout, _), written in zip(results, wrote):  # the rest each left to the other (or found done)
-        assert written + _count(r"(\d+) shards were left to another process", stdout) + \
-            _count(r"(\d+) shards were already there", stdout) == 36, stdout
+        assert written + _count(r"(\d+) shards? (?:was|were) left to another process", stdout) + \
+            _count(r"(\d+) shards? (?:was|were) already there", stdout) == 36, stdout
 
 
 HOLDER = """
@@ -325,8 +327,8 @@ def test_a_live_runs_partial_is_left_alone_and_a_killed_ones_is_redone(tmp_path,
         result = subprocess.run(_command(out, "--no-progress"), capture_output=True, text=True, timeout=120)
         assert partial.read_bytes() == b"half a shard" and not (out / held).exists()
         assert result.returncode == 0, result.stderr
-        assert "1 shards were left to another process" in result.stdout
-        assert "another process is still writing 1 shards" in result.stdout
+        assert "1 shard was left to another process" in result.stdout
+        assert "another process is still writing 1 shard into" in result.stdout
         assert len(_hashes(out)) == 35
     finally:
         os.killpg(holder.pid, signal.SIGKILL)
@@ -335,7 +337,7 @@ def test_a_live_runs_partial_is_left_alone_and_a_killed_ones_is_redone(tmp_path,
 
     result = subprocess.run(_command(out, "--no-progress"), capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert "samples in 1 shards" in result.stdout and "35 shards were already there" in result.stdout
+    assert "samples in 1 shard to" in result.stdout and "35 shards were already there" in result.stdout
     assert "another process" not in result.stdout
     assert not list(out.glob("*.partial")) and _hashes(out) == single_run
 

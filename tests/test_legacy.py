@@ -150,7 +150,7 @@ def test_cli_imports_and_inspect_reads_the_shards(tmp_path, rng, capsys):
     assert "imported 15 rows into 2 shards" in printed and "(5 runs)" in printed and "peak memory" in printed
     assert main(["inspect", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "2 shards, 15 samples, 1 meshes, 5 candidate views" in printed
+    assert "2 shards, 15 samples, 1 mesh, 5 candidate views" in printed
     line = next(line for line in printed.splitlines() if line.startswith("legacy: nbv-regression-2019"))
     assert line.split()[-6:] == ["2", "5", "15", "3.0", "-", "-"]  # shards, runs, samples, scans/run, no coverage
     assert "gain of the NBV: median -" in printed
@@ -252,4 +252,4 @@ def test_first_rows_of_the_authors_dataset(tmp_path, capsys, authors_dataset):
     assert 2 <= data["step"].max() <= 19 and data["step"][0] == 1
     capsys.readouterr()
     assert main(["inspect", str(out)]) == 0
-    assert f"3 shards, {rows} samples, 1 meshes, 263 candidate views" in capsys.readouterr().out
+    assert f"3 shards, {rows} samples, 1 mesh, 263 candidate views" in capsys.readouterr().out

@@ -123,6 +123,20 @@ def test_card_has_schema_statistics_licenses_and_a_working_h5py_snippet(publishe
     assert np.linalg.norm(scope["nbv"]) == pytest.approx(1.0, abs=1e-6)
 
 
+def test_fit_holds_out_the_meshes_a_version_does_for_the_same_seed(shards, tmp_path):
+    """One mesh split: nbvtrain's on shards is the manifest's with no test part."""
+    for seed in (0, 1, 2):
+        m = load_manifest(publish(shards, "toy", "1.0.0", tmp_path / str(seed), seed=seed, val_fraction=0.5,
+                                  test_fraction=0).path)
+        data = load_shards(m.shard_paths)
+        try:
+            train, val, info = split_indices(data, "mesh", 0.5, seed)
+        finally:
+            data.close()
+        published = m.split("mesh")
+        assert info["val_meshes"] == m.content["splits"]["mesh"]["val"]["meshes"]
+        assert np.array_equal(val, published["val"]) and np.array_equal(train, published["train"])
+
 def test_verify_passes_an_untouched_copy(shards, published, tmp_path, capsys):
     assert nbvdata(["verify", str(published)]) == 0
     copy = _copy(shards, tmp_path / "copy")
@@ -154,7 +168,7 @@ def test_verify_names_each_tampered_shard(shards, published, tmp_path, capsys, k
     named = "zzz-extra.h5" if kind == "extra" else victim.name
     assert [line for line in lines if line.startswith(f"{kind}: ")] == [line for line in lines if named in line]
     assert len([line for line in lines if line.startswith(f"{kind}: {named}")]) == 1
-    assert lines[-1].startswith("1 problems")
+    assert lines[-1].startswith("1 problem (")
 
 
 def test_verify_names_every_problem_at_once(shards, published, tmp_path, capsys):

@@ -1,9 +1,14 @@
-"""Voxel rendering draws exactly the faces not hidden by a filled neighbour."""
+"""Voxel rendering draws exactly the faces not hidden by a filled neighbour; the pictures have a
+legend and no blank third."""
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+from matplotlib.image import imread
 
-from nbvdata.render import exposed_faces
+from nbvdata.config import ViewConfig
+from nbvdata.render import draw_state, exposed_faces, render_state, tighten
+from nbvdata.views import view_sphere
 
 
 @pytest.mark.parametrize("block, faces", [((1, 1, 1), 6), ((2, 1, 1), 10), ((3, 3, 3), 54)])
@@ -17,3 +22,45 @@ def test_exposed_faces_of_a_block(block, faces):
     assert np.allclose(edges, 1.0)  # unit squares
     low, high = quads.reshape(-1, 3).min(axis=0), quads.reshape(-1, 3).max(axis=0)
     assert np.array_equal(low, [1, 2, 0]) and np.array_equal(high - low, block)  # on the block's hull
+
+
+def _grid() -> np.ndarray:
+    grid = np.full((16, 16, 16), 0.4, dtype=np.float32)  # free
+    grid[4:12, 4:12, 4:12] = 0.5  # unknown
+    grid[6:10, 6:10, 6:10] = 0.7  # occupied
+    return grid
+
+
+def test_the_legend_names_every_colour_and_arrow():
+    views = view_sphere(ViewConfig(count=40))
+    fig = draw_state(_grid(), 0.3, views, highlight=3, others=[5, 7])
+    texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
+    plt.close(fig)
+    assert texts == ["occupied (64 voxels)", "unknown (448)", "free (3584, not drawn)", "candidate views (40)",
+                     "next-best-view (view 3)", "runner-up candidates"]
+    fig = draw_state(_grid(), 0.3, views, labels=("last scan", "earlier scans"))
+    texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
+    plt.close(fig)
+    assert len(texts) == 4 and not any("scan" in text for text in texts)  # no arrows, no arrow entries
+
+
+@pytest.mark.parametrize("layout", ["hemisphere", "sphere"])
+def test_the_png_is_cropped_to_the_drawing(tmp_path, layout):
+    out = render_state(_grid(), 0.3, tmp_path / "state.png", view_sphere(ViewConfig(count=500, layout=layout)),
+                       highlight=3, title="a title")
+    ink = (imread(out)[..., :3] < 250 / 255).any(axis=2)
+    blank_rows, blank_cols = (~ink.any(axis=1)).mean(), (~ink.any(axis=0)).mean()
+    assert blank_rows < 0.15 and blank_cols < 0.1, (blank_rows, blank_cols)  # was 54 % and 14-33 %
+    assert not ink[:4].any() and not ink[-4:].any() and not ink[:, :4].any() and not ink[:, -4:].any()  # a margin
+
+
+def test_tighten_keeps_the_drawing_whole_and_cuts_the_rest():
+    picture = np.full((100, 50, 4), 255, dtype=np.uint8)
+    picture[5:8, 10:40, :3] = 0  # a title
+    picture[30:35, 20:30, :3] = 0  # the drawing: two parts with a blank gap between them
+    picture[50:60, 15:25, :3] = 0
+    picture[90:95, 5:45, :3] = 0  # a legend
+    tight = tighten(picture, texts=[(5, 7), (90, 94)], margin=3)
+    assert tight.shape[:2] == (3 + 3 + 3 + 3 + 30 + 3 + 3 + 5 + 3, 3 + 40 + 3)
+    ink = np.flatnonzero((tight[..., :3] < 250).any(axis=2).any(axis=1))
+    assert ink.tolist() == [3, 4, 5, *range(12, 17), *range(32, 42), *range(48, 53)]  # the gap 17..31 kept

@@ -16,7 +16,7 @@ import torch
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import GridConfig
 from nbvdata.grid import OccupancyGrid
-from nbvdata.shards import Shard
+from nbvdata.shards import Shard, ShardError
 from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_indices
 from nbvtrain.cli import main
 from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
@@ -161,6 +161,8 @@ def test_splits_are_seeded_disjoint_and_object_disjoint(shards):
         assert len(info["val_meshes"]) == 2
         assert not set(data.mesh_ids[train]) & set(data.mesh_ids[val])
         assert set(data.mesh_ids[val]) == set(info["val_meshes"])
+        with pytest.raises(ShardError, match="--val-fraction 0.99: .* hold out fewer meshes"):
+            split_indices(data, "mesh", 0.99, seed=3)  # no mesh would be left to train on
     finally:
         data.close()
 
