@@ -393,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     pub.set_defaults(func=cmd_publish)
 
     ver = sub.add_parser("verify", help="check shards against a manifest: missing, changed or extra files")
-    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.1.0.json")
+    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.2.0.json")
     ver.add_argument("--root", type=Path, help="folder holding the shards (default: the one the manifest records, "
                      "relative to the manifest)")
     ver.add_argument("--content", action="store_true",
