@@ -75,6 +75,11 @@ def test_identical_to_octomap_with_noise_other_sizes_and_near_sensor():
     _assert_same_as_octomap(scans, GridConfig(size=24, extent=0.36, prob_hit=0.8, clamp_max=0.95))
 
 
+# 1 cm voxels in a fixed 0.32 m cube, as the hand-made cases below assume (and big enough for a 0.2 m
+# box; the default cube is fitted to a 0.136 m object).
+CM_GRID = GridConfig(extent=0.32)
+
+
 @pytest.fixture(scope="module")
 def box_scan():
     scanner = MeshScanner(trimesh.creation.box((0.2, 0.2, 0.2)), SensorConfig(width=88, height=72))
@@ -82,7 +87,7 @@ def box_scan():
 
 
 def test_box_seen_from_plus_x_is_occupied_only_on_its_plus_x_side(box_scan):
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(CM_GRID)
     grid.integrate(box_scan, FAR)
     p = grid.probabilities()
     centres = grid.voxel_centres()
@@ -96,7 +101,7 @@ def test_box_seen_from_plus_x_is_occupied_only_on_its_plus_x_side(box_scan):
 
 
 def test_unknown_is_exactly_one_half_and_counts_add_up(box_scan):
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(CM_GRID)
     assert (grid.probabilities() == np.float32(0.5)).all()
     assert grid.counts() == {"occupied": 0, "free": 0, "unknown": 32 ** 3}
     grid.integrate(box_scan, FAR)
@@ -106,7 +111,7 @@ def test_unknown_is_exactly_one_half_and_counts_add_up(box_scan):
 
 
 def test_repeated_scans_raise_confidence_until_the_clamps(box_scan):
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(CM_GRID)
     grid.integrate(box_scan, FAR)
     once = grid.probabilities()
     occupied, free = once > 0.5, once < 0.5
@@ -127,7 +132,7 @@ def test_within_one_scan_a_hit_wins_over_a_miss():
     origin = np.array([0.4, 0.005, 0.005], dtype=np.float32)
     # Ray A ends in voxel (20, 16, 16) (x in [0.04, 0.05)); ray B passes through it to x = -0.095.
     points = np.array([[0.045, 0.005, 0.005], [-0.095, 0.005, 0.005]], dtype=np.float32)
-    grid = OccupancyGrid()
+    grid = OccupancyGrid(CM_GRID)
     grid.integrate(Scan(origin, points, np.array([True, True])), FAR)
     p = grid.probabilities()
     assert p[20, 16, 16] == pytest.approx(0.7, rel=1e-6)
@@ -140,7 +145,7 @@ def test_rays_without_return_carve_free_space_to_the_far_range():
     origin = np.array([0.4, 0.005, 0.005], dtype=np.float32)
     beyond = np.array([[-1.6, 0.005, 0.005]], dtype=np.float32)  # 2 m away: no return
     for far, last_free in [(1.0, 0), (0.545, 2)]:  # 0.545 m ends in voxel 1, left unmarked
-        grid = OccupancyGrid()
+        grid = OccupancyGrid(CM_GRID)
         grid.integrate(Scan(origin, beyond, np.array([False])), far)
         p = grid.probabilities()[:, 16, 16]
         assert (p[last_free:] == np.float32(0.4)).all() and (p[:last_free] == 0.5).all()
