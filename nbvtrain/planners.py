@@ -166,38 +166,6 @@ class InfoGainPlanner(Planner):
                          information, first)
         return InfoGainScores(information.sum(axis=1), (first == 1).sum(axis=1), (first == 2).sum(axis=1))
 
-    def sampled_scores(self, probabilities: np.ndarray, view: int, rays: np.ndarray,
-                       step: float = 2e-5) -> tuple[float, int, int]:
-        """The slow reference for tests and benchmarks: ``scores`` of one view over the rays
-        ``rays``, found by sampling each ray every ``step`` metres instead of the DDA (it can miss
-        a voxel corner clipped by less than ``step``). Returns (information, known, unknown rays)."""
-        n, resolution = self.grid.size, self.grid.resolution
-        low, high = self._box
-        origin = self._origins[view].astype(np.float64)
-        information, known, unknown = 0.0, 0, 0
-        for ray in rays:
-            end = self._ends[view, ray].astype(np.float64)
-            length = np.linalg.norm(end - origin)
-            points = origin + (end - origin) / length * np.arange(0.0, length, step)[:, None]
-            keys = np.floor(points / resolution).astype(np.int64) + n // 2
-            keys = keys[((keys >= 0) & (keys < n)).all(axis=1)]
-            if not len(keys):
-                continue  # the ray misses the grid (the fitted cube is smaller than the frustum)
-            keys = keys[np.concatenate([[True], (np.diff(keys, axis=0) != 0).any(axis=1)])]  # voxels in order
-            met = 0
-            for i, j, k in keys:
-                p = probabilities[i, j, k]
-                in_box = low <= i < high and low <= j < high and low <= k < high
-                if p > 0.5:
-                    met = met or (1 if in_box else 0)
-                    break
-                if in_box and self.unknown[0] <= p <= self.unknown[1]:
-                    information += -(p * math.log(p) + (1 - p) * math.log(1 - p))
-                    met = met or 2
-            known += met == 1
-            unknown += met == 2
-        return information, known, unknown
-
     def best_view(self, probabilities: np.ndarray) -> int:
         """The valid view with the most information (ties: the lowest index); when no view is
         valid, the most informative one."""
