@@ -11,11 +11,12 @@ Outputs in the folder ``out``:
     coverage.csv   one row per (mesh, planner, start, scan): coverage of all reference points and
                    of the observable ones (seen from some candidate view), seconds the planner
                    took to choose that scan's pose (0 for the start), the pose
-    summary.md     coverage after the last scan (objects x planners, best in bold, mean row, the
-                   paper's Table 1 figures where an object matches), and time per NBV
+    summary.md     coverage after the last scan (objects x planners, best and tied best in bold,
+                   mean row, the paper's Table 1 figures where an object matches), and time per NBV
     plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
     config.yaml    the simulation settings and the evaluation's arguments
-    failures.tsv   meshes that could not be used, with the reason (only when there are some)
+    failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
+                   (only when there are some)
 """
 
 from __future__ import annotations
@@ -108,8 +109,8 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
             obj = source.load(config.mesh)
             scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id))
         except (MeshError, ValueError, RuntimeError) as error:
-            report.failures.append((str(source.path or source.name), str(error)))
-            print(f"nbvtrain evaluate: skipping {source.name}: {error}")
+            name = str(source.path or source.name)
+            report.failures.append((name, str(error).removeprefix(f"{name}: ")))  # the caller prints them
             bar.update(len(planners) * (1 + starts))
             continue
         firsts = start_views(scene, source.mesh_id, starts, seed)
@@ -136,7 +137,8 @@ def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skip
     (out / "summary.md").write_text(summary_markdown(report, planners, skipped))
     (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
     if report.failures:
-        (out / "failures.tsv").write_text("".join(f"{name}\t{reason}\n" for name, reason in report.failures))
+        lines = ["mesh\treason\n"] + [f"{name}\t{' '.join(reason.split())}\n" for name, reason in report.failures]
+        (out / "failures.tsv").write_text("".join(lines))
     plot_coverage(report.rows, out / "plots")
 
 
@@ -159,7 +161,8 @@ def _paper(mesh: str) -> tuple[float, float, float] | None:
 
 
 def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]:
-    """Markdown rows: objects x planners, mean (+- std over starts) in %, best in bold, mean row."""
+    """Markdown rows: objects x planners, mean (+- std over starts) in %, the best (and any value
+    printed the same) in bold, mean row."""
     finals = final_coverage(rows, key)
     meshes = sorted({mesh for mesh, _ in finals})
     planners = [p for p in planners if any((m, p) in finals for m in meshes)]
@@ -169,7 +172,8 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
     means = defaultdict(list)
     for mesh in meshes:
         values = {p: 100 * finals[(mesh, p)] for p in planners if (mesh, p) in finals}
-        best = max(v.mean() for v in values.values())
+        shown = {p: float(f"{v.mean():.1f}") for p, v in values.items()}  # as printed, so every tie is bold
+        best = max(shown.values())
         cells = []
         for planner in planners:
             if planner not in values:
@@ -178,7 +182,7 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
             value = values[planner]
             means[planner].append(value.mean())
             text = f"{value.mean():.1f}" + (f" ± {value.std():.1f}" if len(value) > 1 else "")
-            cells.append(f"**{text}**" if np.isclose(value.mean(), best) else text)
+            cells.append(f"**{text}**" if shown[planner] == best else text)
         paper = _paper(mesh)
         extra = [" / ".join(f"{v:.1f}" for v in paper) if paper else "-"] if with_paper else []
         lines.append(f"| {mesh} | " + " | ".join(cells + extra) + " |")
@@ -195,7 +199,7 @@ def summary_markdown(report: EvaluationReport, planners: list[str], skipped: lis
     lines = [f"# Closed-loop evaluation: {len({r['mesh'] for r in rows})} objects, {scans} scans, "
              f"{starts} start{'s' if starts != 1 else ''} per object", ""]
     lines += [f"Coverage (%) of the surface after scan {scans}" + (", mean ± std over starts" if starts > 1 else "")
-              + "; best per object in bold.", ""]
+              + "; best per object (and ties) in bold.", ""]
     lines += coverage_table(rows, planners, "coverage")
     lines += ["", f"Observable coverage (%) after scan {scans}: of the surface some candidate view can see.", ""]
     lines += coverage_table(rows, planners, "observable_coverage")
@@ -225,6 +229,7 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     folder.mkdir(parents=True, exist_ok=True)
     series = defaultdict(lambda: defaultdict(dict))  # mesh -> planner -> start -> {scan: coverage}
@@ -240,6 +245,7 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
             if len(values) > 1:
                 axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
         axes.set(xlabel="scan", ylabel="coverage (%)", title=mesh, ylim=(0, 100))
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # scans are whole: no tick at 1.5
         axes.grid(alpha=0.3)
         axes.legend(loc="lower right", fontsize=8)
         figure.tight_layout()

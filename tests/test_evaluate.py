@@ -17,7 +17,7 @@ from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import evaluate, final_coverage
+from nbvtrain.evaluate import coverage_table, evaluate, final_coverage, plot_coverage
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
                                build_planners)
@@ -124,7 +124,11 @@ def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys
     out = tmp_path / "eval"
     assert main(["evaluate", "--meshes", str(folder), "--planners", "random", "--scans", "2", "--config", str(SMOKE),
                  "--out", str(out), "--no-progress"]) == 1
-    assert "broken.obj" in capsys.readouterr().err and "broken.obj" in (out / "failures.tsv").read_text()
+    printed = capsys.readouterr()
+    assert len([line for line in (printed.out + printed.err).splitlines() if "broken.obj" in line]) == 1
+    assert printed.err.count("broken.obj") == 1  # said once, the path not repeated in the reason
+    header, *failures = (out / "failures.tsv").read_text().splitlines()
+    assert header == "mesh\treason" and len(failures) == 1 and failures[0].split("\t")[0].endswith("broken.obj")
     assert {r["mesh"] for r in _rows(out / "coverage.csv")} == {"mug"}
 
 
@@ -208,6 +212,46 @@ def test_oracle_and_random_planners(scene, config):
         planner.start(7)
         picks.append([tuple(planner.next_pose(observation).position) for _ in range(5)])
     assert picks[0] == picks[1] and len(set(picks[0])) > 1
+
+
+def _row(mesh, planner, start, scan, coverage, overlap=None, valid_views=None):
+    return {"mesh": mesh, "planner": planner, "start": start, "start_view": 0, "scan": scan, "coverage": coverage,
+            "observable_coverage": coverage, "seconds": 0.001, "x": 0.0, "y": 0.0, "z": 0.4, "overlap": overlap,
+            "valid_views": valid_views}
+
+
+def _finals(table: list[tuple[str, tuple, tuple, tuple]]) -> list[dict]:
+    """Rows of two starts x two scans per planner: (planner, final coverages, overlaps, valid views)."""
+    rows = []
+    for planner, finals, overlaps, valid in table:
+        for start, final in enumerate(finals):
+            rows += [_row("mug", planner, start, 1, 0.5),
+                     _row("mug", planner, start, 2, final, overlaps[start], valid[start])]
+    return rows
+
+
+def test_summary_bolds_every_tie():
+    rows = _finals([("a", (0.9791, 0.9794), (0.5, 0.1), (3, 0)),  # 97.9 as printed
+                    ("b", (0.9788, 0.9788), (0.05, 0.3), (2, 2)),  # 97.9 as well, a little less
+                    ("c", (0.90, 0.91), (0.3, 0.3), (1, 1))])
+    (line,) = [row for row in coverage_table(rows, ["a", "b", "c"], "coverage") if row.startswith("| mug")]
+    assert line == "| mug | **97.9 ± 0.0** | **97.9 ± 0.0** | 90.5 ± 0.5 |"
+
+
+def test_plots_tick_whole_scans(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    ticks, save = [], Figure.savefig
+
+    def spy(figure, *args, **kwargs):
+        low, high = figure.axes[0].get_xlim()
+        ticks.append([t for t in figure.axes[0].get_xticks() if low <= t <= high])
+        return save(figure, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", spy)
+    rows = [_row("mug", "a", 0, scan, 0.2 * scan) for scan in (1, 2, 3)]
+    plot_coverage(rows, tmp_path)
+    assert ticks and ticks[0] == [1.0, 2.0, 3.0]
 
 
 def test_information_gain_agrees_with_a_sampled_walk(scene, config):
