@@ -4,7 +4,10 @@ Every planner drives the same simulator as ``nbvdata generate`` (``nbvdata.episo
 scans cast live so continuous poses work): scan from the start view, then ``scans - 1`` times
 ask the planner for the next pose, scan there and integrate. Start 0 is the candidate view in
 front of the object (nearest to +x, as the paper starts), starts 1..K are seeded random
-candidate views (``nbvdata.episode.start_view``), the same for every planner.
+candidate views, the same for every planner, drawn from the evaluation's own stream
+(``evaluation_rng``) and never one of the start views of the ``episode.runs_per_mesh`` runs
+``nbvdata generate`` makes of that mesh with the same seed (``nbvdata.episode.start_view``), so
+evaluating on a training mesh does not begin at a training sample.
 
 Outputs in the folder ``out``:
 
@@ -41,6 +44,9 @@ from nbvtrain.planners import Observation, Planner
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
                "x", "y", "z")
+# Spawn key of the evaluation's start views; nbvdata.episode's per-mesh streams use 0 (reference
+# points), 1 (generation start views) and 2 (generation runs).
+EVALUATION_STREAM = 3
 # The paper's Table 1: coverage (%) after 10 scans, and time per NBV (s), GTX 1080.
 PAPER_COVERAGE = {  # object keyword: (classification, regression, information gain)
     "sphere": (96.7, 95.7, 96.2), "mask": (94.7, 95.3, 95.0), "helmet": (82.7, 84.9, 86.5),
@@ -66,9 +72,22 @@ def front_view(scene: Scene) -> int:
     return int(np.argmax(scene.views.unit_positions @ FRONT))
 
 
-def start_views(scene: Scene, mesh_id: str, starts: int, seed: int) -> list[int]:
-    """Start 0 in front, then ``starts`` seeded random candidate views (distinct while they last)."""
-    return [front_view(scene)] + [start_view(seed, mesh_id, len(scene.views), run) for run in range(starts)]
+def evaluation_rng(seed: int, mesh_id: str) -> np.random.Generator:
+    """The evaluation's own stream for a mesh: nbvdata.episode's per-mesh entropy (the seed and
+    the mesh id's first 64 bits) with spawn key ``EVALUATION_STREAM``, which no generation stream uses."""
+    key = [seed, int(mesh_id[:16], 16)]
+    return np.random.default_rng(np.random.SeedSequence(key, spawn_key=(EVALUATION_STREAM,)))
+
+
+def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_runs: int) -> list[int]:
+    """Start 0 in front, then ``starts`` random candidate views from ``evaluation_rng`` (distinct
+    while they last), leaving out the start views of generation runs 0..``generation_runs``-1 of
+    this mesh and seed (unless they are all the views)."""
+    count = len(scene.views)
+    taken = {start_view(seed, mesh_id, count, run) for run in range(min(generation_runs, count))}
+    order = evaluation_rng(seed, mesh_id).permutation(count)
+    free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
+    return [front_view(scene)] + [free[k % len(free)] for k in range(starts)]
 
 
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
@@ -113,7 +132,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
             report.failures.append((name, str(error).removeprefix(f"{name}: ")))  # the caller prints them
             bar.update(len(planners) * (1 + starts))
             continue
-        firsts = start_views(scene, source.mesh_id, starts, seed)
+        firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
         for planner in planners:
             for number, first in enumerate(firsts):
                 rows = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))

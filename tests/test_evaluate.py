@@ -10,14 +10,16 @@ import numpy as np
 import pytest
 import torch
 
+from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import Reconstruction, ViewCache, scene_rng
+from nbvdata.episode import Reconstruction, ViewCache, scene_rng, start_view
 from nbvdata.generate import MeshSource
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.shards import Shard, shard_files
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import coverage_table, evaluate, final_coverage, plot_coverage
+from nbvtrain.evaluate import coverage_table, evaluate, final_coverage, front_view, plot_coverage, start_views
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
                                build_planners)
@@ -212,6 +214,39 @@ def test_oracle_and_random_planners(scene, config):
         planner.start(7)
         picks.append([tuple(planner.next_pose(observation).position) for _ in range(5)])
     assert picks[0] == picks[1] and len(set(picks[0])) > 1
+
+
+def test_evaluation_starts_are_not_generation_starts(meshes, tmp_path):
+    """Same meshes, config and seed: no random evaluation start is the start of a generation run."""
+    shards = tmp_path / "shards"
+    assert nbvdata_main(["generate", "--meshes", str(meshes), "--config", str(SMOKE), "--out", str(shards),
+                         "--no-progress"]) == 0
+    generated = {}
+    for path in shard_files([shards]):
+        with Shard(path) as shard:
+            first = shard["step"] == 1
+            mesh = shard.info.meshes[0]["source"].removesuffix(".obj")
+            generated.setdefault(mesh, set()).update(shard["last_view"][first].tolist())
+    assert {mesh: len(views) for mesh, views in generated.items()} == {"mug": 3, "ring": 3}  # runs_per_mesh
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes), "--planners", "random", "--scans", "2", "--starts", "8",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    starts = {}
+    for row in _rows(out / "coverage.csv"):
+        if int(row["start"]) > 0:
+            starts.setdefault(row["mesh"], set()).add(int(row["start_view"]))
+    for mesh, views in starts.items():
+        assert len(views) == 8 and not views & generated[mesh], mesh
+
+
+def test_start_views_avoid_every_generation_start(scene):
+    mesh_id, count = scene.object.mesh_id, len(scene.views)
+    for seed in range(4):
+        taken = {start_view(seed, mesh_id, count, run) for run in range(40)}  # 40 of the 60 views
+        starts = start_views(scene, mesh_id, 12, seed, generation_runs=40)
+        assert starts[0] == front_view(scene) and len(set(starts[1:])) == 12 and not set(starts[1:]) & taken
+    # every view started a generation run: then any view will do, still from the evaluation's stream
+    assert len(set(start_views(scene, mesh_id, 5, 0, generation_runs=100)[1:])) == 5
 
 
 def _row(mesh, planner, start, scan, coverage, overlap=None, valid_views=None):
