@@ -7,15 +7,27 @@ front of the object (nearest to +x, as the paper starts), starts 1..K are seeded
 candidate views, the same for every planner, drawn from the evaluation's own stream
 (``evaluation_rng``) and never one of the start views of the ``episode.runs_per_mesh`` runs
 ``nbvdata generate`` makes of that mesh with the same seed (``nbvdata.episode.start_view``), so
-evaluating on a training mesh does not begin at a training sample.
+evaluating on a training mesh does not begin at a training sample. Each reconstruction's seed
+is split (``SeedSequence.spawn``) into one stream for the sensor's range noise and one for the
+planner (the random planner's choices), so neither depends on the other.
+
+The overlap of a chosen pose is measured as the oracle's (``nbvdata.oracle``), on what its scan
+actually covered: with S the reference points the live scan from the pose covers and C those
+covered before it, overlap = |S & C| / |S| (0 when S is empty); for a candidate view with a
+noise-free sensor S = O_v, the oracle's own overlap(v). A choice breaks the overlap rule when
+this is below ``oracle.min_overlap``. The oracle breaks it only when no candidate view passes
+(it then takes the most informative one); information gain judges the rule by an estimate from
+the grid (and falls back likewise), so it can break it; the other planners never check it.
 
 Outputs in the folder ``out``:
 
     coverage.csv   one row per (mesh, planner, start, scan): coverage of all reference points and
                    of the observable ones (seen from some candidate view), seconds the planner
-                   took to choose that scan's pose (0 for the start), the pose
+                   took to choose that scan's pose (0 for the start), the pose, the pose's overlap
+                   and how many candidate views were valid before it (both empty for the start)
     summary.md     coverage after the last scan (objects x planners, best and tied best in bold,
-                   mean row, the paper's Table 1 figures where an object matches), and time per NBV
+                   mean row, the paper's Table 1 figures where an object matches), time per NBV,
+                   and how often each planner broke the overlap rule
     plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
     config.yaml    the simulation settings and the evaluation's arguments
     failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
@@ -43,7 +55,7 @@ from nbvtrain.planners import Observation, Planner
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
-               "x", "y", "z")
+               "x", "y", "z", "overlap", "valid_views")
 # Spawn key of the evaluation's start views; nbvdata.episode's per-mesh streams use 0 (reference
 # points), 1 (generation start views) and 2 (generation runs).
 EVALUATION_STREAM = 3
@@ -60,11 +72,13 @@ PAPER_SECONDS = {"classification": 0.01, "regression": 0.3, "infogain": 29.9}
 
 @dataclass
 class EvaluationReport:
-    """rows: the coverage.csv rows; failures: (mesh file, reason); seconds: wall time."""
+    """rows: the coverage.csv rows; failures: (mesh file, reason); seconds: wall time;
+    min_overlap: the overlap rule the rows' overlaps are judged by."""
 
     rows: list[dict] = field(default_factory=list)
     failures: list[tuple[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    min_overlap: float = SimConfig().oracle.min_overlap
 
 
 def front_view(scene: Scene) -> int:
@@ -90,12 +104,22 @@ def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_r
     return [front_view(scene)] + [free[k % len(free)] for k in range(starts)]
 
 
+def overlap(seen: np.ndarray, covered: np.ndarray) -> float:
+    """|seen & covered| / |seen| of two (W,) packed point masks (0 when ``seen`` is empty):
+    the oracle's overlap, for what a scan actually covered."""
+    count = popcount(seen)
+    return popcount(seen & covered) / count if count else 0.0
+
+
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
     """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
-    seconds and the pose position. Only a privileged planner sees the ``Reconstruction``."""
-    planner.start(seed)
-    state = Reconstruction(scene, None, np.random.default_rng(seed))
-    pose, seconds = scene.views[first_view], 0.0
+    seconds, the pose position, its overlap and the number of valid candidate views before it
+    (None for the start). Only a privileged planner sees the ``Reconstruction``."""
+    noise, choices = np.random.SeedSequence(seed).spawn(2)
+    planner.start(choices)
+    state = Reconstruction(scene, None, np.random.default_rng(noise))
+    min_overlap = scene.config.oracle.min_overlap
+    pose, seconds, pose_overlap, valid_views = scene.views[first_view], 0.0, None, None
     poses, rows = [], []
     for scan in range(1, scans + 1):
         if scan > 1:
@@ -103,12 +127,18 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
             started = time.perf_counter()
             pose = planner.next_pose(observation, state if planner.privileged else None)
             seconds = time.perf_counter() - started
-        state.scan_pose(pose)
+            scores = scene.oracle.score(state.covered)
+            valid_views = int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
+        before = state.covered.copy()
+        seen = state.scan_pose(pose)
+        if scan > 1:
+            pose_overlap = overlap(seen, before)
         poses.append(pose)
         x, y, z = pose.position.tolist()
         rows.append({"scan": scan, "coverage": popcount(state.covered) / scene.oracle.points,
                      "observable_coverage": scene.oracle.observable_coverage(state.covered),
-                     "seconds": seconds, "x": x, "y": y, "z": z})
+                     "seconds": seconds, "x": x, "y": y, "z": z, "overlap": pose_overlap,
+                     "valid_views": valid_views})
     return rows
 
 
@@ -119,7 +149,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     from tqdm import tqdm
 
     began = time.perf_counter()
-    report = EvaluationReport()
+    report = EvaluationReport(min_overlap=config.oracle.min_overlap)
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     for source in sources:
@@ -211,7 +241,7 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
 
 
 def summary_markdown(report: EvaluationReport, planners: list[str], skipped: list[str]) -> str:
-    """The summary: coverage tables after the last scan, and the time per NBV."""
+    """The summary: coverage tables after the last scan, the time per NBV and the overlap rule."""
     rows = report.rows
     scans = max((row["scan"] for row in rows), default=0)
     starts = len({row["start"] for row in rows})
@@ -234,11 +264,31 @@ def summary_markdown(report: EvaluationReport, planners: list[str], skipped: lis
             paper = PAPER_SECONDS.get(planner)
             lines.append(f"| {planner} | {np.median(t):.2f} | {t.mean():.2f} | {t.max():.2f} | {len(t)} | "
                          f"{paper if paper is not None else '-'} |")
+    lines += ["", *overlap_table(rows, planners, report.min_overlap)]
     if skipped or report.failures:
         lines.append("")
     lines += [f"- {message}" for message in skipped]
     lines += [f"- mesh {name} failed: {reason}" for name, reason in report.failures]
     return "\n".join(lines) + "\n"
+
+
+def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> list[str]:
+    """Markdown: per planner, the share of decisions whose pose broke the overlap rule, and of
+    decisions taken where no candidate view passed it (so even the oracle had to)."""
+    lines = [f"Overlap rule: decisions whose chosen pose had an overlap under {100 * min_overlap:g} % (the oracle's "
+             "overlap, of what the pose's scan covered: the share already covered before it), and decisions "
+             "taken where no candidate view passed the rule (the oracle then takes the most informative view; "
+             "infogain checks the rule on an estimate from the grid; regression, classification and random "
+             "never check it).", "",
+             "| planner | decisions | overlap under the rule | no valid candidate view |", "|---|---|---|---|"]
+    for planner in planners:
+        decisions = [row for row in rows if row["planner"] == planner and row["scan"] > 1]
+        if decisions:
+            broke = sum(row["overlap"] < min_overlap for row in decisions)
+            none_valid = sum(row["valid_views"] == 0 for row in decisions)
+            lines.append(f"| {planner} | {len(decisions)} | {100 * broke / len(decisions):.1f} % ({broke}) | "
+                         f"{100 * none_valid / len(decisions):.1f} % ({none_valid}) |")
+    return lines
 
 
 def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:

@@ -13,7 +13,8 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   occupied voxel (p > 0.5) or the sensor's far range, adding the entropy H(p) of every unknown
   voxel it passes inside the object's box. A view must pass the overlap constraint, estimated
   from the grid: of its rays that reach the box and meet a non-free voxel there, the share whose
-  first such voxel is known occupied (surface seen before) must be >= ``min_overlap``.
+  first such voxel is known occupied (surface seen before) must be >= ``min_overlap``; when no
+  view passes, the most informative view is taken (as the oracle does).
 - ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
 - ``random``: a seeded uniformly random candidate view.
 """
@@ -54,8 +55,9 @@ class Planner:
     name = "planner"
     privileged = False
 
-    def start(self, seed: int) -> None:
-        """Called before every reconstruction; ``seed`` is that reconstruction's own seed."""
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        """Called before every reconstruction; ``seed`` is that reconstruction's stream for the
+        planner (spawned apart from the sensor noise's)."""
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         raise NotImplementedError
@@ -104,7 +106,7 @@ class RandomPlanner(Planner):
         self.views = views
         self.rng = np.random.default_rng(0)
 
-    def start(self, seed: int) -> None:
+    def start(self, seed: int | np.random.SeedSequence) -> None:
         self.rng = np.random.default_rng(seed)
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:

@@ -1,5 +1,6 @@
 """nbvtrain evaluate and its planners: the full command on two small meshes, blindness of the
-robot's planners to the mesh, information gain against a slow sampled reference."""
+robot's planners to the mesh, information gain against a slow sampled reference, start views
+apart from generation's, separate random streams, the overlap of chosen poses, the summary."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import Shard, shard_files
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import coverage_table, evaluate, final_coverage, front_view, plot_coverage, start_views
+from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, final_coverage, front_view,
+                               plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
                                build_planners)
@@ -96,6 +98,10 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
     assert "| object | regression | classification | infogain | oracle | random |" in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
+    assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
+    for run in runs.values():
+        assert run[0]["overlap"] == run[0]["valid_views"] == ""  # the start is no decision
+        assert all(0 <= float(r["overlap"]) <= 1 and int(r["valid_views"]) >= 0 for r in run[1:])
     assert (out / "plots" / "mug.png").stat().st_size > 5000 and (out / "plots" / "ring.png").exists()
     assert "scans: 5" in (out / "config.yaml").read_text()
 
@@ -249,6 +255,59 @@ def test_start_views_avoid_every_generation_start(scene):
     assert len(set(start_views(scene, mesh_id, 5, 0, generation_runs=100)[1:])) == 5
 
 
+def test_random_choices_and_sensor_noise_have_separate_streams(config, scene):
+    noisy_config = load_config(SimConfig, SMOKE, ["sensor.noise_std=0.002"])
+    noisy = Scene.build(scene.object, noisy_config, scene_rng(0, scene.object.mesh_id))
+    poses = [[(r["x"], r["y"], r["z"]) for r in reconstruct(s, RandomPlanner(s.views), 3, 6, seed=11)]
+             for s in (scene, noisy)]
+    assert poses[0] == poses[1]  # the random planner's choices do not depend on the noise
+
+    class Spy(Planner):
+        """Compares the planner's stream with the sensor noise's (unused by this noise-free scene)."""
+
+        privileged = True
+
+        def start(self, seed):
+            self.draws = np.random.default_rng(seed).random(4)
+
+        def next_pose(self, observation, truth=None):
+            self.noise_draws = truth.rng.random(4)
+            return truth.scene.views[0]
+
+    spy = Spy()
+    reconstruct(scene, spy, 3, 2, seed=11)
+    assert not np.array_equal(spy.draws, spy.noise_draws)
+
+
+def test_chosen_pose_overlap_is_the_oracles(scene, config):
+    """Noise-free, a candidate pose's overlap is the oracle's overlap(v) at that state, and the
+    oracle breaks the rule only where no candidate view passes it."""
+
+    class Fixed(Planner):
+        def __init__(self, views):
+            self.views, self.order = views, iter([])
+
+        def start(self, seed):
+            self.order = iter([40, 41, 17, 3, 55])
+
+        def next_pose(self, observation, truth=None):
+            return scene.views[next(self.order)]
+
+    rows = reconstruct(scene, Fixed(scene.views), 5, 6, seed=0)
+    state = Reconstruction(scene, ViewCache(scene), np.random.default_rng(0))
+    state.scan(5)
+    min_overlap = config.oracle.min_overlap
+    for view, row in zip([40, 41, 17, 3, 55], rows[1:]):
+        scores = scene.oracle.score(state.covered)
+        assert row["overlap"] == pytest.approx(scores.overlaps[view], abs=1e-12)
+        assert row["valid_views"] == int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
+        state.scan(view)
+    assert rows[0]["overlap"] is None and min(r["overlap"] for r in rows[1:]) < min_overlap  # some break it
+    for first in (0, 20, 40):
+        oracle_rows = reconstruct(scene, OraclePlanner(scene.views, min_overlap), first, 10, seed=0)
+        assert all(r["valid_views"] == 0 for r in oracle_rows[1:] if r["overlap"] < min_overlap)
+
+
 def _row(mesh, planner, start, scan, coverage, overlap=None, valid_views=None):
     return {"mesh": mesh, "planner": planner, "start": start, "start_view": 0, "scan": scan, "coverage": coverage,
             "observable_coverage": coverage, "seconds": 0.001, "x": 0.0, "y": 0.0, "z": 0.4, "overlap": overlap,
@@ -271,6 +330,14 @@ def test_summary_bolds_every_tie():
                     ("c", (0.90, 0.91), (0.3, 0.3), (1, 1))])
     (line,) = [row for row in coverage_table(rows, ["a", "b", "c"], "coverage") if row.startswith("| mug")]
     assert line == "| mug | **97.9 ± 0.0** | **97.9 ± 0.0** | 90.5 ± 0.5 |"
+
+
+def test_summary_counts_overlap_breaks():
+    rows = _finals([("a", (0.9, 0.9), (0.5, 0.1), (3, 0)), ("b", (0.9, 0.9), (0.05, 0.3), (2, 2)),
+                    ("c", (0.9, 0.9), (0.3, 0.2), (1, 1))])  # 0.2 is not under the rule
+    summary = summary_markdown(EvaluationReport(rows, min_overlap=0.2), ["a", "b", "c"], [])
+    assert "| a | 2 | 50.0 % (1) | 50.0 % (1) |" in summary and "| b | 2 | 50.0 % (1) | 0.0 % (0) |" in summary
+    assert "| c | 2 | 0.0 % (0) | 0.0 % (0) |" in summary and "under 20 %" in summary
 
 
 def test_plots_tick_whole_scans(tmp_path, monkeypatch):
