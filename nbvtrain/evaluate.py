@@ -5,7 +5,7 @@ scans cast live so continuous poses work): scan from the start view, then ``scan
 ask the planner for the next pose, scan there and integrate. Start 0 is the candidate view in
 front of the object (nearest to +x, as the paper starts), starts 1..K are seeded random
 candidate views, the same for every planner, drawn from the evaluation's own stream
-(``evaluation_rng``) and never one of the start views of the ``episode.runs_per_mesh`` runs
+(``evaluation_rng``), never the front view nor one of the start views of the ``episode.runs_per_mesh`` runs
 ``nbvdata generate`` makes of that mesh with the same seed (``nbvdata.episode.start_view``), so
 evaluating on a training mesh does not begin at a training sample. Each reconstruction's seed
 is split (``SeedSequence.spawn``) into one stream for the sensor's range noise and one for the
@@ -95,13 +95,13 @@ def evaluation_rng(seed: int, mesh_id: str) -> np.random.Generator:
 
 def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_runs: int) -> list[int]:
     """Start 0 in front, then ``starts`` random candidate views from ``evaluation_rng`` (distinct
-    while they last), leaving out the start views of generation runs 0..``generation_runs``-1 of
-    this mesh and seed (unless they are all the views)."""
-    count = len(scene.views)
-    taken = {start_view(seed, mesh_id, count, run) for run in range(min(generation_runs, count))}
+    while they last), leaving out the front view and the start views of generation runs
+    0..``generation_runs``-1 of this mesh and seed (unless that leaves none)."""
+    count, front = len(scene.views), front_view(scene)
+    taken = {front} | {start_view(seed, mesh_id, count, run) for run in range(min(generation_runs, count))}
     order = evaluation_rng(seed, mesh_id).permutation(count)
     free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
-    return [front_view(scene)] + [free[k % len(free)] for k in range(starts)]
+    return [front] + [free[k % len(free)] for k in range(starts)]
 
 
 def overlap(seen: np.ndarray, covered: np.ndarray) -> float:
@@ -277,9 +277,10 @@ def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> 
     decisions taken where no candidate view passed it (so even the oracle had to)."""
     lines = [f"Overlap rule: decisions whose chosen pose had an overlap under {100 * min_overlap:g} % (the oracle's "
              "overlap, of what the pose's scan covered: the share already covered before it), and decisions "
-             "taken where no candidate view passed the rule (the oracle then takes the most informative view; "
-             "infogain checks the rule on an estimate from the grid; regression, classification and random "
-             "never check it).", "",
+             "taken where no candidate view was valid, i.e. passed the rule and added surface (the oracle then "
+             "takes the most informative view; this includes states with all the observable surface covered). "
+             "Infogain checks the rule on an estimate from the grid; regression, classification and random never "
+             "check it.", "",
              "| planner | decisions | overlap under the rule | no valid candidate view |", "|---|---|---|---|"]
     for planner in planners:
         decisions = [row for row in rows if row["planner"] == planner and row["scan"] > 1]

@@ -250,7 +250,10 @@ def test_start_views_avoid_every_generation_start(scene):
     for seed in range(4):
         taken = {start_view(seed, mesh_id, count, run) for run in range(40)}  # 40 of the 60 views
         starts = start_views(scene, mesh_id, 12, seed, generation_runs=40)
-        assert starts[0] == front_view(scene) and len(set(starts[1:])) == 12 and not set(starts[1:]) & taken
+        assert starts[0] == front_view(scene) and len(set(starts)) == 13 and not set(starts[1:]) & taken
+    # no generation run: every view but the front one, each once
+    others = start_views(scene, mesh_id, count - 1, 0, generation_runs=0)[1:]
+    assert set(others) == set(range(count)) - {front_view(scene)}
     # every view started a generation run: then any view will do, still from the evaluation's stream
     assert len(set(start_views(scene, mesh_id, 5, 0, generation_runs=100)[1:])) == 5
 
