@@ -64,15 +64,18 @@ class Reconstruction:
         else:
             self.scan_pose(self.scene.views[view])
 
-    def scan_pose(self, pose: Pose) -> None:
-        """Scan from any pose (a network's continuous prediction, say), cast live, and integrate.
+    def scan_pose(self, pose: Pose) -> np.ndarray:
+        """Scan from any pose (a network's continuous prediction, say), cast live, and integrate;
+        returns the (W,) packed reference points this scan covered.
 
         From a candidate view's pose with a noise-free sensor this gives the same grid and
         covered points as ``scan(view)``."""
         scan = self.scene.scanner.scan(pose, self.rng)
         self.scene.integrate(self.grid, scan)
-        self.covered |= pack_bits(self.scene.coverage.covered_by(scan.hit_points))
+        seen = pack_bits(self.scene.coverage.covered_by(scan.hit_points))
+        self.covered |= seen
         self.scans += 1
+        return seen
 
 
 @dataclass

@@ -58,7 +58,8 @@ def nearest_neighbour(data: ShardSet, train_idx: np.ndarray, val_idx: np.ndarray
 
 def _score(data: ShardSet, predictions: np.ndarray, val_idx: np.ndarray) -> dict[str, float]:
     gains = data.gains[val_idx] if data.gains is not None else None
-    return evaluate(predictions, data.targets[val_idx], gains, data.view_units)
+    valid = data.valid[val_idx] if data.valid is not None else None
+    return evaluate(predictions, data.targets[val_idx], gains, data.view_units, valid)
 
 
 BASELINES = {"mean direction": mean_direction, "mean vector": mean_vector, "nearest neighbour": nearest_neighbour}

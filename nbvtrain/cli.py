@@ -94,12 +94,14 @@ def cmd_baselines(args: argparse.Namespace) -> int:
         train_idx, val_idx, split = split_indices(data, args.split, args.val_fraction, args.seed)
         print(f"{len(train_idx)} training and {plural(len(val_idx), 'validation sample')} ({split['kind']} split, "
               f"seed {args.seed})")
-        print(f"{'predictor':20s} {'val MSE':>8s} {'val MAE':>8s} {'angle':>8s} {'gain ratio':>10s} {'seconds':>8s}")
+        print(f"{'predictor':20s} {'val MSE':>8s} {'val MAE':>8s} {'angle':>8s} {'gain ratio':>10s} {'invalid':>8s} "
+              f"{'seconds':>8s}")
         for name, baseline in BASELINES.items():
             started = time.perf_counter()
             scores = baseline(data, train_idx, val_idx)
             print(f"{name:20s} {scores['mse']:8.4f} {scores['mae']:8.4f} {scores['angle_deg']:7.1f}d "
-                  f"{format_ratio(scores['gain_ratio']):>10s} {time.perf_counter() - started:8.1f}")
+                  f"{format_ratio(scores['gain_ratio']):>10s} {format_ratio(scores['invalid_share']):>8s} "
+                  f"{time.perf_counter() - started:8.1f}")
     finally:
         data.close()
     return 0

@@ -67,6 +67,7 @@ class ShardSet:
     mesh_ids     : (N,) str, or None when a shard has no mesh ids (imported data)
     gains        : (N, V) float32 gain of every candidate view, or None when not every shard
                    has them for one common view set
+    valid        : (N, V) bool, each view's overlap >= its shard's ``oracle.min_overlap`` (None with gains)
     view_units   : (V, 3) float64 unit candidate positions (None with gains)
     view_radius  : metres from the object centre to the views
     """
@@ -77,6 +78,7 @@ class ShardSet:
     targets: np.ndarray
     mesh_ids: np.ndarray | None
     gains: np.ndarray | None
+    valid: np.ndarray | None
     view_units: np.ndarray | None
     view_radius: float
     grid_size: int
@@ -101,6 +103,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
                 "dtype": f["grids"].dtype, "targets": shard["nbv_position"].astype(np.float32),
                 "mesh_id": shard["mesh_id"].astype(str) if shard.has("mesh_id") else None,
                 "gains": shard["gains"] if shard.has("gains") else None,
+                "valid": _valid_views(shard),
                 "views": shard["view_positions"],
             })
     sizes = {info["size"] for info in infos if info["samples"]}
@@ -131,15 +134,24 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
     views = infos[0]["views"]
     radius = float(np.linalg.norm(views, axis=1).mean())
     same_views = all(info["views"].shape == views.shape and np.allclose(info["views"], views) for info in infos)
-    has_gains = same_views and all(info["gains"] is not None for info in infos)
+    has_gains = same_views and all(info["gains"] is not None and info["valid"] is not None for info in infos)
     has_mesh = all(info["mesh_id"] is not None for info in infos)
     return ShardSet(
         paths=list(paths), grids=grids, palette=palette,
         targets=np.concatenate([info["targets"] for info in infos]),
         mesh_ids=np.concatenate([info["mesh_id"] for info in infos]) if has_mesh else None,
         gains=np.concatenate([info["gains"] for info in infos]).astype(np.float32) if has_gains else None,
+        valid=np.concatenate([info["valid"] for info in infos]) if has_gains else None,
         view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
         view_radius=radius, grid_size=size)
+
+
+def _valid_views(shard: Shard) -> np.ndarray | None:
+    """(N, V) bool: which views pass the overlap rule the shard was labelled with, or None."""
+    min_overlap = (shard.info.config or {}).get("oracle", {}).get("min_overlap")
+    if not shard.has("overlaps") or min_overlap is None:
+        return None
+    return shard["overlaps"].astype(np.float64) >= float(min_overlap)
 
 
 def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:

@@ -4,18 +4,34 @@ Every planner drives the same simulator as ``nbvdata generate`` (``nbvdata.episo
 scans cast live so continuous poses work): scan from the start view, then ``scans - 1`` times
 ask the planner for the next pose, scan there and integrate. Start 0 is the candidate view in
 front of the object (nearest to +x, as the paper starts), starts 1..K are seeded random
-candidate views (``nbvdata.episode.start_view``), the same for every planner.
+candidate views, the same for every planner, drawn from the evaluation's own stream
+(``evaluation_rng``), never the front view nor one of the start views of the ``episode.runs_per_mesh`` runs
+``nbvdata generate`` makes of that mesh with the same seed (``nbvdata.episode.start_view``), so
+evaluating on a training mesh does not begin at a training sample. Each reconstruction's seed
+is split (``SeedSequence.spawn``) into one stream for the sensor's range noise and one for the
+planner (the random planner's choices), so neither depends on the other.
+
+The overlap of a chosen pose is measured as the oracle's (``nbvdata.oracle``), on what its scan
+actually covered: with S the reference points the live scan from the pose covers and C those
+covered before it, overlap = |S & C| / |S| (0 when S is empty); for a candidate view with a
+noise-free sensor S = O_v, the oracle's own overlap(v). A choice breaks the overlap rule when
+this is below ``oracle.min_overlap``. The oracle breaks it only when no candidate view passes
+(it then takes the most informative one); information gain judges the rule by an estimate from
+the grid (and falls back likewise), so it can break it; the other planners never check it.
 
 Outputs in the folder ``out``:
 
     coverage.csv   one row per (mesh, planner, start, scan): coverage of all reference points and
                    of the observable ones (seen from some candidate view), seconds the planner
-                   took to choose that scan's pose (0 for the start), the pose
-    summary.md     coverage after the last scan (objects x planners, best in bold, mean row, the
-                   paper's Table 1 figures where an object matches), and time per NBV
+                   took to choose that scan's pose (0 for the start), the pose, the pose's overlap
+                   and how many candidate views were valid before it (both empty for the start)
+    summary.md     coverage after the last scan (objects x planners, best and tied best in bold,
+                   mean row, the paper's Table 1 figures where an object matches), time per NBV,
+                   and how often each planner broke the overlap rule
     plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
     config.yaml    the simulation settings and the evaluation's arguments
-    failures.tsv   meshes that could not be used, with the reason (only when there are some)
+    failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
+                   (only when there are some)
 """
 
 from __future__ import annotations
@@ -39,7 +55,10 @@ from nbvtrain.planners import Observation, Planner
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
-               "x", "y", "z")
+               "x", "y", "z", "overlap", "valid_views")
+# Spawn key of the evaluation's start views; nbvdata.episode's per-mesh streams use 0 (reference
+# points), 1 (generation start views) and 2 (generation runs).
+EVALUATION_STREAM = 3
 # The paper's Table 1: coverage (%) after 10 scans, and time per NBV (s), GTX 1080.
 PAPER_COVERAGE = {  # object keyword: (classification, regression, information gain)
     "sphere": (96.7, 95.7, 96.2), "mask": (94.7, 95.3, 95.0), "helmet": (82.7, 84.9, 86.5),
@@ -53,11 +72,13 @@ PAPER_SECONDS = {"classification": 0.01, "regression": 0.3, "infogain": 29.9}
 
 @dataclass
 class EvaluationReport:
-    """rows: the coverage.csv rows; failures: (mesh file, reason); seconds: wall time."""
+    """rows: the coverage.csv rows; failures: (mesh file, reason); seconds: wall time;
+    min_overlap: the overlap rule the rows' overlaps are judged by."""
 
     rows: list[dict] = field(default_factory=list)
     failures: list[tuple[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    min_overlap: float = SimConfig().oracle.min_overlap
 
 
 def front_view(scene: Scene) -> int:
@@ -65,17 +86,40 @@ def front_view(scene: Scene) -> int:
     return int(np.argmax(scene.views.unit_positions @ FRONT))
 
 
-def start_views(scene: Scene, mesh_id: str, starts: int, seed: int) -> list[int]:
-    """Start 0 in front, then ``starts`` seeded random candidate views (distinct while they last)."""
-    return [front_view(scene)] + [start_view(seed, mesh_id, len(scene.views), run) for run in range(starts)]
+def evaluation_rng(seed: int, mesh_id: str) -> np.random.Generator:
+    """The evaluation's own stream for a mesh: nbvdata.episode's per-mesh entropy (the seed and
+    the mesh id's first 64 bits) with spawn key ``EVALUATION_STREAM``, which no generation stream uses."""
+    key = [seed, int(mesh_id[:16], 16)]
+    return np.random.default_rng(np.random.SeedSequence(key, spawn_key=(EVALUATION_STREAM,)))
+
+
+def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_runs: int) -> list[int]:
+    """Start 0 in front, then ``starts`` random candidate views from ``evaluation_rng`` (distinct
+    while they last), leaving out the front view and the start views of generation runs
+    0..``generation_runs``-1 of this mesh and seed (unless that leaves none)."""
+    count, front = len(scene.views), front_view(scene)
+    taken = {front} | {start_view(seed, mesh_id, count, run) for run in range(min(generation_runs, count))}
+    order = evaluation_rng(seed, mesh_id).permutation(count)
+    free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
+    return [front] + [free[k % len(free)] for k in range(starts)]
+
+
+def overlap(seen: np.ndarray, covered: np.ndarray) -> float:
+    """|seen & covered| / |seen| of two (W,) packed point masks (0 when ``seen`` is empty):
+    the oracle's overlap, for what a scan actually covered."""
+    count = popcount(seen)
+    return popcount(seen & covered) / count if count else 0.0
 
 
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
     """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
-    seconds and the pose position. Only a privileged planner sees the ``Reconstruction``."""
-    planner.start(seed)
-    state = Reconstruction(scene, None, np.random.default_rng(seed))
-    pose, seconds = scene.views[first_view], 0.0
+    seconds, the pose position, its overlap and the number of valid candidate views before it
+    (None for the start). Only a privileged planner sees the ``Reconstruction``."""
+    noise, choices = np.random.SeedSequence(seed).spawn(2)
+    planner.start(choices)
+    state = Reconstruction(scene, None, np.random.default_rng(noise))
+    min_overlap = scene.config.oracle.min_overlap
+    pose, seconds, pose_overlap, valid_views = scene.views[first_view], 0.0, None, None
     poses, rows = [], []
     for scan in range(1, scans + 1):
         if scan > 1:
@@ -83,12 +127,18 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
             started = time.perf_counter()
             pose = planner.next_pose(observation, state if planner.privileged else None)
             seconds = time.perf_counter() - started
-        state.scan_pose(pose)
+            scores = scene.oracle.score(state.covered)
+            valid_views = int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
+        before = state.covered.copy()
+        seen = state.scan_pose(pose)
+        if scan > 1:
+            pose_overlap = overlap(seen, before)
         poses.append(pose)
         x, y, z = pose.position.tolist()
         rows.append({"scan": scan, "coverage": popcount(state.covered) / scene.oracle.points,
                      "observable_coverage": scene.oracle.observable_coverage(state.covered),
-                     "seconds": seconds, "x": x, "y": y, "z": z})
+                     "seconds": seconds, "x": x, "y": y, "z": z, "overlap": pose_overlap,
+                     "valid_views": valid_views})
     return rows
 
 
@@ -99,7 +149,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     from tqdm import tqdm
 
     began = time.perf_counter()
-    report = EvaluationReport()
+    report = EvaluationReport(min_overlap=config.oracle.min_overlap)
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     for source in sources:
@@ -108,11 +158,11 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
             obj = source.load(config.mesh)
             scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id))
         except (MeshError, ValueError, RuntimeError) as error:
-            report.failures.append((str(source.path or source.name), str(error)))
-            print(f"nbvtrain evaluate: skipping {source.name}: {error}")
+            name = str(source.path or source.name)
+            report.failures.append((name, str(error).removeprefix(f"{name}: ")))  # the caller prints them
             bar.update(len(planners) * (1 + starts))
             continue
-        firsts = start_views(scene, source.mesh_id, starts, seed)
+        firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
         for planner in planners:
             for number, first in enumerate(firsts):
                 rows = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
@@ -136,7 +186,8 @@ def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skip
     (out / "summary.md").write_text(summary_markdown(report, planners, skipped))
     (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
     if report.failures:
-        (out / "failures.tsv").write_text("".join(f"{name}\t{reason}\n" for name, reason in report.failures))
+        lines = ["mesh\treason\n"] + [f"{name}\t{' '.join(reason.split())}\n" for name, reason in report.failures]
+        (out / "failures.tsv").write_text("".join(lines))
     plot_coverage(report.rows, out / "plots")
 
 
@@ -159,7 +210,8 @@ def _paper(mesh: str) -> tuple[float, float, float] | None:
 
 
 def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]:
-    """Markdown rows: objects x planners, mean (+- std over starts) in %, best in bold, mean row."""
+    """Markdown rows: objects x planners, mean (+- std over starts) in %, the best (and any value
+    printed the same) in bold, mean row."""
     finals = final_coverage(rows, key)
     meshes = sorted({mesh for mesh, _ in finals})
     planners = [p for p in planners if any((m, p) in finals for m in meshes)]
@@ -169,7 +221,8 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
     means = defaultdict(list)
     for mesh in meshes:
         values = {p: 100 * finals[(mesh, p)] for p in planners if (mesh, p) in finals}
-        best = max(v.mean() for v in values.values())
+        shown = {p: float(f"{v.mean():.1f}") for p, v in values.items()}  # as printed, so every tie is bold
+        best = max(shown.values())
         cells = []
         for planner in planners:
             if planner not in values:
@@ -178,7 +231,7 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
             value = values[planner]
             means[planner].append(value.mean())
             text = f"{value.mean():.1f}" + (f" ± {value.std():.1f}" if len(value) > 1 else "")
-            cells.append(f"**{text}**" if np.isclose(value.mean(), best) else text)
+            cells.append(f"**{text}**" if shown[planner] == best else text)
         paper = _paper(mesh)
         extra = [" / ".join(f"{v:.1f}" for v in paper) if paper else "-"] if with_paper else []
         lines.append(f"| {mesh} | " + " | ".join(cells + extra) + " |")
@@ -188,14 +241,14 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
 
 
 def summary_markdown(report: EvaluationReport, planners: list[str], skipped: list[str]) -> str:
-    """The summary: coverage tables after the last scan, and the time per NBV."""
+    """The summary: coverage tables after the last scan, the time per NBV and the overlap rule."""
     rows = report.rows
     scans = max((row["scan"] for row in rows), default=0)
     starts = len({row["start"] for row in rows})
     lines = [f"# Closed-loop evaluation: {len({r['mesh'] for r in rows})} objects, {scans} scans, "
              f"{starts} start{'s' if starts != 1 else ''} per object", ""]
     lines += [f"Coverage (%) of the surface after scan {scans}" + (", mean ± std over starts" if starts > 1 else "")
-              + "; best per object in bold.", ""]
+              + "; best per object (and ties) in bold.", ""]
     lines += coverage_table(rows, planners, "coverage")
     lines += ["", f"Observable coverage (%) after scan {scans}: of the surface some candidate view can see.", ""]
     lines += coverage_table(rows, planners, "observable_coverage")
@@ -211,11 +264,32 @@ def summary_markdown(report: EvaluationReport, planners: list[str], skipped: lis
             paper = PAPER_SECONDS.get(planner)
             lines.append(f"| {planner} | {np.median(t):.2f} | {t.mean():.2f} | {t.max():.2f} | {len(t)} | "
                          f"{paper if paper is not None else '-'} |")
+    lines += ["", *overlap_table(rows, planners, report.min_overlap)]
     if skipped or report.failures:
         lines.append("")
     lines += [f"- {message}" for message in skipped]
     lines += [f"- mesh {name} failed: {reason}" for name, reason in report.failures]
     return "\n".join(lines) + "\n"
+
+
+def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> list[str]:
+    """Markdown: per planner, the share of decisions whose pose broke the overlap rule, and of
+    decisions taken where no candidate view passed it (so even the oracle had to)."""
+    lines = [f"Overlap rule: decisions whose chosen pose had an overlap under {100 * min_overlap:g} % (the oracle's "
+             "overlap, of what the pose's scan covered: the share already covered before it), and decisions "
+             "taken where no candidate view was valid, i.e. passed the rule and added surface (the oracle then "
+             "takes the most informative view; this includes states with all the observable surface covered). "
+             "Infogain checks the rule on an estimate from the grid; regression, classification and random never "
+             "check it.", "",
+             "| planner | decisions | overlap under the rule | no valid candidate view |", "|---|---|---|---|"]
+    for planner in planners:
+        decisions = [row for row in rows if row["planner"] == planner and row["scan"] > 1]
+        if decisions:
+            broke = sum(row["overlap"] < min_overlap for row in decisions)
+            none_valid = sum(row["valid_views"] == 0 for row in decisions)
+            lines.append(f"| {planner} | {len(decisions)} | {100 * broke / len(decisions):.1f} % ({broke}) | "
+                         f"{100 * none_valid / len(decisions):.1f} % ({none_valid}) |")
+    return lines
 
 
 def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
@@ -225,6 +299,7 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     folder.mkdir(parents=True, exist_ok=True)
     series = defaultdict(lambda: defaultdict(dict))  # mesh -> planner -> start -> {scan: coverage}
@@ -240,6 +315,7 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
             if len(values) > 1:
                 axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
         axes.set(xlabel="scan", ylabel="coverage (%)", title=mesh, ylim=(0, 100))
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # scans are whole: no tick at 1.5
         axes.grid(alpha=0.3)
         axes.legend(loc="lower right", fontsize=8)
         figure.tight_layout()

@@ -13,7 +13,8 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   occupied voxel (p > 0.5) or the sensor's far range, adding the entropy H(p) of every unknown
   voxel it passes inside the object's box. A view must pass the overlap constraint, estimated
   from the grid: of its rays that reach the box and meet a non-free voxel there, the share whose
-  first such voxel is known occupied (surface seen before) must be >= ``min_overlap``.
+  first such voxel is known occupied (surface seen before) must be >= ``min_overlap``; when no
+  view passes, the most informative view is taken (as the oracle does).
 - ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
 - ``random``: a seeded uniformly random candidate view.
 """
@@ -54,8 +55,9 @@ class Planner:
     name = "planner"
     privileged = False
 
-    def start(self, seed: int) -> None:
-        """Called before every reconstruction; ``seed`` is that reconstruction's own seed."""
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        """Called before every reconstruction; ``seed`` is that reconstruction's stream for the
+        planner (spawned apart from the sensor noise's)."""
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         raise NotImplementedError
@@ -104,7 +106,7 @@ class RandomPlanner(Planner):
         self.views = views
         self.rng = np.random.default_rng(0)
 
-    def start(self, seed: int) -> None:
+    def start(self, seed: int | np.random.SeedSequence) -> None:
         self.rng = np.random.default_rng(seed)
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
@@ -165,38 +167,6 @@ class InfoGainPlanner(Planner):
                          self._box[0], self._box[1], self.unknown[0], self.unknown[1], self._scratch,
                          information, first)
         return InfoGainScores(information.sum(axis=1), (first == 1).sum(axis=1), (first == 2).sum(axis=1))
-
-    def sampled_scores(self, probabilities: np.ndarray, view: int, rays: np.ndarray,
-                       step: float = 2e-5) -> tuple[float, int, int]:
-        """The slow reference for tests and benchmarks: ``scores`` of one view over the rays
-        ``rays``, found by sampling each ray every ``step`` metres instead of the DDA (it can miss
-        a voxel corner clipped by less than ``step``). Returns (information, known, unknown rays)."""
-        n, resolution = self.grid.size, self.grid.resolution
-        low, high = self._box
-        origin = self._origins[view].astype(np.float64)
-        information, known, unknown = 0.0, 0, 0
-        for ray in rays:
-            end = self._ends[view, ray].astype(np.float64)
-            length = np.linalg.norm(end - origin)
-            points = origin + (end - origin) / length * np.arange(0.0, length, step)[:, None]
-            keys = np.floor(points / resolution).astype(np.int64) + n // 2
-            keys = keys[((keys >= 0) & (keys < n)).all(axis=1)]
-            if not len(keys):
-                continue  # the ray misses the grid (the fitted cube is smaller than the frustum)
-            keys = keys[np.concatenate([[True], (np.diff(keys, axis=0) != 0).any(axis=1)])]  # voxels in order
-            met = 0
-            for i, j, k in keys:
-                p = probabilities[i, j, k]
-                in_box = low <= i < high and low <= j < high and low <= k < high
-                if p > 0.5:
-                    met = met or (1 if in_box else 0)
-                    break
-                if in_box and self.unknown[0] <= p <= self.unknown[1]:
-                    information += -(p * math.log(p) + (1 - p) * math.log(1 - p))
-                    met = met or 2
-            known += met == 1
-            unknown += met == 2
-        return information, known, unknown
 
     def best_view(self, probabilities: np.ndarray) -> int:
         """The valid view with the most information (ties: the lowest index); when no view is

@@ -44,7 +44,7 @@ from nbvtrain.metrics import evaluate, format_ratio
 from nbvtrain.models import NBVNet, build_model, class_positions, parameter_count
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
-           "seconds", "train_samples_per_s")
+           "val_invalid_share", "seconds", "train_samples_per_s")
 EVAL_BATCH = 500
 
 
@@ -286,7 +286,8 @@ def _validate(model: NBVNet, data: ShardSet, val_idx: np.ndarray, palette: torch
                 loss += loss_fn(output, _labels(targets, classes)).item() * len(index)
                 predictions.append(classes[output.argmax(dim=1)].cpu().numpy())
     gains = data.gains[val_idx] if data.gains is not None else None
-    scores = evaluate(np.concatenate(predictions), data.targets[val_idx], gains, data.view_units)
+    valid = data.valid[val_idx] if data.valid is not None else None
+    scores = evaluate(np.concatenate(predictions), data.targets[val_idx], gains, data.view_units, valid)
     return {"val_loss": loss / len(val_idx), **{f"val_{k}": v for k, v in scores.items()}}
 
 

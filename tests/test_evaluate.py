@@ -1,5 +1,6 @@
 """nbvtrain evaluate and its planners: the full command on two small meshes, blindness of the
-robot's planners to the mesh, information gain against a slow sampled reference."""
+robot's planners to the mesh, information gain against a slow sampled reference, start views
+apart from generation's, separate random streams, the overlap of chosen poses, the summary."""
 
 from __future__ import annotations
 
@@ -10,18 +11,23 @@ import numpy as np
 import pytest
 import torch
 
+from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import Reconstruction, ViewCache, scene_rng
+from nbvdata.episode import Reconstruction, ViewCache, scene_rng, start_view
 from nbvdata.generate import MeshSource
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.shards import Shard, shard_files
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import evaluate, final_coverage
+from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, final_coverage, front_view,
+                               plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
                                build_planners)
 from nbvtrain.train import _save
+
+from reference_infogain import sampled_scores
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -92,6 +98,10 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
     assert "| object | regression | classification | infogain | oracle | random |" in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
+    assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
+    for run in runs.values():
+        assert run[0]["overlap"] == run[0]["valid_views"] == ""  # the start is no decision
+        assert all(0 <= float(r["overlap"]) <= 1 and int(r["valid_views"]) >= 0 for r in run[1:])
     assert (out / "plots" / "mug.png").stat().st_size > 5000 and (out / "plots" / "ring.png").exists()
     assert "scans: 5" in (out / "config.yaml").read_text()
 
@@ -122,7 +132,11 @@ def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys
     out = tmp_path / "eval"
     assert main(["evaluate", "--meshes", str(folder), "--planners", "random", "--scans", "2", "--config", str(SMOKE),
                  "--out", str(out), "--no-progress"]) == 1
-    assert "broken.obj" in capsys.readouterr().err and "broken.obj" in (out / "failures.tsv").read_text()
+    printed = capsys.readouterr()
+    assert len([line for line in (printed.out + printed.err).splitlines() if "broken.obj" in line]) == 1
+    assert printed.err.count("broken.obj") == 1  # said once, the path not repeated in the reason
+    header, *failures = (out / "failures.tsv").read_text().splitlines()
+    assert header == "mesh\treason" and len(failures) == 1 and failures[0].split("\t")[0].endswith("broken.obj")
     assert {r["mesh"] for r in _rows(out / "coverage.csv")} == {"mug"}
 
 
@@ -208,6 +222,143 @@ def test_oracle_and_random_planners(scene, config):
     assert picks[0] == picks[1] and len(set(picks[0])) > 1
 
 
+def test_evaluation_starts_are_not_generation_starts(meshes, tmp_path):
+    """Same meshes, config and seed: no random evaluation start is the start of a generation run."""
+    shards = tmp_path / "shards"
+    assert nbvdata_main(["generate", "--meshes", str(meshes), "--config", str(SMOKE), "--out", str(shards),
+                         "--no-progress"]) == 0
+    generated = {}
+    for path in shard_files([shards]):
+        with Shard(path) as shard:
+            first = shard["step"] == 1
+            mesh = shard.info.meshes[0]["source"].removesuffix(".obj")
+            generated.setdefault(mesh, set()).update(shard["last_view"][first].tolist())
+    assert {mesh: len(views) for mesh, views in generated.items()} == {"mug": 3, "ring": 3}  # runs_per_mesh
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes), "--planners", "random", "--scans", "2", "--starts", "8",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    starts = {}
+    for row in _rows(out / "coverage.csv"):
+        if int(row["start"]) > 0:
+            starts.setdefault(row["mesh"], set()).add(int(row["start_view"]))
+    for mesh, views in starts.items():
+        assert len(views) == 8 and not views & generated[mesh], mesh
+
+
+def test_start_views_avoid_every_generation_start(scene):
+    mesh_id, count = scene.object.mesh_id, len(scene.views)
+    for seed in range(4):
+        taken = {start_view(seed, mesh_id, count, run) for run in range(40)}  # 40 of the 60 views
+        starts = start_views(scene, mesh_id, 12, seed, generation_runs=40)
+        assert starts[0] == front_view(scene) and len(set(starts)) == 13 and not set(starts[1:]) & taken
+    # no generation run: every view but the front one, each once
+    others = start_views(scene, mesh_id, count - 1, 0, generation_runs=0)[1:]
+    assert set(others) == set(range(count)) - {front_view(scene)}
+    # every view started a generation run: then any view will do, still from the evaluation's stream
+    assert len(set(start_views(scene, mesh_id, 5, 0, generation_runs=100)[1:])) == 5
+
+
+def test_random_choices_and_sensor_noise_have_separate_streams(config, scene):
+    noisy_config = load_config(SimConfig, SMOKE, ["sensor.noise_std=0.002"])
+    noisy = Scene.build(scene.object, noisy_config, scene_rng(0, scene.object.mesh_id))
+    poses = [[(r["x"], r["y"], r["z"]) for r in reconstruct(s, RandomPlanner(s.views), 3, 6, seed=11)]
+             for s in (scene, noisy)]
+    assert poses[0] == poses[1]  # the random planner's choices do not depend on the noise
+
+    class Spy(Planner):
+        """Compares the planner's stream with the sensor noise's (unused by this noise-free scene)."""
+
+        privileged = True
+
+        def start(self, seed):
+            self.draws = np.random.default_rng(seed).random(4)
+
+        def next_pose(self, observation, truth=None):
+            self.noise_draws = truth.rng.random(4)
+            return truth.scene.views[0]
+
+    spy = Spy()
+    reconstruct(scene, spy, 3, 2, seed=11)
+    assert not np.array_equal(spy.draws, spy.noise_draws)
+
+
+def test_chosen_pose_overlap_is_the_oracles(scene, config):
+    """Noise-free, a candidate pose's overlap is the oracle's overlap(v) at that state, and the
+    oracle breaks the rule only where no candidate view passes it."""
+
+    class Fixed(Planner):
+        def __init__(self, views):
+            self.views, self.order = views, iter([])
+
+        def start(self, seed):
+            self.order = iter([40, 41, 17, 3, 55])
+
+        def next_pose(self, observation, truth=None):
+            return scene.views[next(self.order)]
+
+    rows = reconstruct(scene, Fixed(scene.views), 5, 6, seed=0)
+    state = Reconstruction(scene, ViewCache(scene), np.random.default_rng(0))
+    state.scan(5)
+    min_overlap = config.oracle.min_overlap
+    for view, row in zip([40, 41, 17, 3, 55], rows[1:]):
+        scores = scene.oracle.score(state.covered)
+        assert row["overlap"] == pytest.approx(scores.overlaps[view], abs=1e-12)
+        assert row["valid_views"] == int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
+        state.scan(view)
+    assert rows[0]["overlap"] is None and min(r["overlap"] for r in rows[1:]) < min_overlap  # some break it
+    for first in (0, 20, 40):
+        oracle_rows = reconstruct(scene, OraclePlanner(scene.views, min_overlap), first, 10, seed=0)
+        assert all(r["valid_views"] == 0 for r in oracle_rows[1:] if r["overlap"] < min_overlap)
+
+
+def _row(mesh, planner, start, scan, coverage, overlap=None, valid_views=None):
+    return {"mesh": mesh, "planner": planner, "start": start, "start_view": 0, "scan": scan, "coverage": coverage,
+            "observable_coverage": coverage, "seconds": 0.001, "x": 0.0, "y": 0.0, "z": 0.4, "overlap": overlap,
+            "valid_views": valid_views}
+
+
+def _finals(table: list[tuple[str, tuple, tuple, tuple]]) -> list[dict]:
+    """Rows of two starts x two scans per planner: (planner, final coverages, overlaps, valid views)."""
+    rows = []
+    for planner, finals, overlaps, valid in table:
+        for start, final in enumerate(finals):
+            rows += [_row("mug", planner, start, 1, 0.5),
+                     _row("mug", planner, start, 2, final, overlaps[start], valid[start])]
+    return rows
+
+
+def test_summary_bolds_every_tie():
+    rows = _finals([("a", (0.9791, 0.9794), (0.5, 0.1), (3, 0)),  # 97.9 as printed
+                    ("b", (0.9788, 0.9788), (0.05, 0.3), (2, 2)),  # 97.9 as well, a little less
+                    ("c", (0.90, 0.91), (0.3, 0.3), (1, 1))])
+    (line,) = [row for row in coverage_table(rows, ["a", "b", "c"], "coverage") if row.startswith("| mug")]
+    assert line == "| mug | **97.9 ± 0.0** | **97.9 ± 0.0** | 90.5 ± 0.5 |"
+
+
+def test_summary_counts_overlap_breaks():
+    rows = _finals([("a", (0.9, 0.9), (0.5, 0.1), (3, 0)), ("b", (0.9, 0.9), (0.05, 0.3), (2, 2)),
+                    ("c", (0.9, 0.9), (0.3, 0.2), (1, 1))])  # 0.2 is not under the rule
+    summary = summary_markdown(EvaluationReport(rows, min_overlap=0.2), ["a", "b", "c"], [])
+    assert "| a | 2 | 50.0 % (1) | 50.0 % (1) |" in summary and "| b | 2 | 50.0 % (1) | 0.0 % (0) |" in summary
+    assert "| c | 2 | 0.0 % (0) | 0.0 % (0) |" in summary and "under 20 %" in summary
+
+
+def test_plots_tick_whole_scans(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    ticks, save = [], Figure.savefig
+
+    def spy(figure, *args, **kwargs):
+        low, high = figure.axes[0].get_xlim()
+        ticks.append([t for t in figure.axes[0].get_xticks() if low <= t <= high])
+        return save(figure, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", spy)
+    rows = [_row("mug", "a", 0, scan, 0.2 * scan) for scan in (1, 2, 3)]
+    plot_coverage(rows, tmp_path)
+    assert ticks and ticks[0] == [1.0, 2.0, 3.0]
+
+
 def test_information_gain_agrees_with_a_sampled_walk(scene, config):
     planner = InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                               config.oracle.min_overlap)
@@ -220,7 +371,7 @@ def test_information_gain_agrees_with_a_sampled_walk(scene, config):
     from nbvtrain.planners import _ray_information
 
     for view in (0, 9, 19):
-        information, known, unknown = planner.sampled_scores(probabilities, view, rays)
+        information, known, unknown = sampled_scores(planner, probabilities, view, rays)
         ends = np.ascontiguousarray(planner._ends[view:view + 1, rays])
         fast = np.zeros(ends.shape[:2])
         first = np.zeros(ends.shape[:2], dtype=np.int8)

@@ -1,5 +1,5 @@
 """nbvtrain on smoke shards: the run folder, exact resume, Ctrl-C, augmentation, splits,
-lazy loading, metrics, prediction and the baselines."""
+lazy loading, prediction and the baselines (the metrics: test_metrics.py)."""
 
 import json
 import os
@@ -20,7 +20,6 @@ from nbvdata.shards import Shard, ShardError
 from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_indices
 from nbvtrain.cli import main
 from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
-from nbvtrain.metrics import evaluate
 from nbvtrain.predict import Predictor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -179,20 +178,6 @@ def test_lazy_loading_gives_the_same_grids_as_in_memory(shards, rng):
     finally:
         memory.close()
         lazy.close()
-
-
-def test_metrics_on_known_predictions():
-    views = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
-    gains = np.array([[0.1, 0.4, 0.2], [0.3, 0.0, 0.6]], dtype=np.float32)
-    targets = np.array([[1.0, 0, 0], [0, 1.0, 0]])
-    perfect = evaluate(targets, targets, gains, views)
-    assert perfect == {"mse": 0.0, "mae": 0.0, "angle_deg": 0.0, "gain_ratio": 1.0}
-    wrong = evaluate(-targets, targets, gains, views)
-    assert wrong["angle_deg"] == pytest.approx(180) and wrong["mse"] == pytest.approx(4 / 3)
-    # predictions nearest to view 0 in both states: 0.1/0.4 and 0.3/0.6
-    assert evaluate(np.array([[0, 0.1, 1.0], [0.1, 0, 1.0]]), targets, gains, views)["gain_ratio"] == \
-        pytest.approx((0.25 + 0.5) / 2)
-    assert np.isnan(evaluate(targets, targets)["gain_ratio"])
 
 
 def test_predict_gives_a_look_at_pose_at_the_scaled_radius(shards, tmp_path, capsys):
