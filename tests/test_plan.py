@@ -209,6 +209,22 @@ def test_translating_and_scaling_the_scene_moves_the_answer_exactly(scene, check
         assert answer["max_range"] == scale and answer["grid"]["side"] == base["grid"]["side"] * scale
 
 
+def test_the_maximum_range_is_in_world_metres(scene, checkpoint, tmp_path, capsys):
+    """A point farther than --max-range from its sensor marks nothing and carves free space to
+    that range, as OctoMap's insertPointCloud(maxrange): in a scene twice as large, 0.7 m is the
+    simulator's 0.35 m, which cuts the rays short of the object's far side."""
+    scans, poses, _ = scene
+    expected = OccupancyGrid(SimConfig().scene_grid)
+    for scan in scans:
+        expected.integrate(scan, 0.35)
+    move = np.diag([2.0, 2.0, 2.0, 1.0])
+    scans_file = _write_scans(tmp_path / "large", scans, poses, move, dtype=np.float64)
+    answer = _plan(capsys, "--scans", scans_file, "--center", "0,0,0", "--size", 0.272, "--max-range", 0.7,
+                   "--checkpoint", checkpoint, "--save-grid", tmp_path / "grid.npy")
+    assert np.array_equal(np.load(tmp_path / "grid.npy"), expected.probabilities()) and answer["max_range"] == 0.7
+    assert answer["grid"]["occupied"] < (scene[2] > 0.5).sum()
+
+
 @pytest.mark.parametrize("up", ["y", "-x", "-z"])
 def test_a_world_with_another_vertical_gives_the_same_grid_and_the_turned_answer(scene, checkpoint, up, tmp_path,
                                                                                    capsys):
