@@ -27,7 +27,6 @@ size, the grid's corner on a key boundary, axes aligned) this is exact, voxel fo
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -346,8 +345,9 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
         grid = grid_from_octomap(tree, frame, config, source)
         octomap_info = {"resolution": float(tree.getResolution()), "exact": bool(octomap_aligned(tree, frame, config))}
     if not (grid > 0.5).any():
-        raise PlanError(f"{source}: no occupied voxel in the object box ({config.scene_grid.extent * frame.k:.3f} m cube "
-                        f"at --center {_text(frame.center)}): check --center, --size and --up, and that the data is "
+        side = config.scene_grid.extent * frame.k
+        raise PlanError(f"{source}: no occupied voxel in the object box ({side:.3f} m cube at --center "
+                        f"{_text(frame.center)}): check --center, --size and --up, and that the data is "
                         "in the world frame")
     planner = planner or load_planner(checkpoint, device)
     if abs(planner.radius - config.views.radius) > 1e-3 * config.views.radius:

@@ -349,7 +349,8 @@ def read_octomap(path: str | Path):
         first = handle.readline().rstrip(b"\r\n")
     if first != OCTOMAP_HEADERS[suffix]:
         other = next((s for s, h in OCTOMAP_HEADERS.items() if h == first), None)
-        hint = f"it is a {other} file: rename it" if other else f"it does not start with '{OCTOMAP_HEADERS[suffix].decode()}'"
+        expected = OCTOMAP_HEADERS[suffix].decode()
+        hint = f"it is a {other} file: rename it" if other else f"it does not start with '{expected}'"
         raise SensorDataError(f"{path}: not an OctoMap {suffix} file ({hint})")
     with _captured_stderr() as messages:
         if suffix == ".bt":

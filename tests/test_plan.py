@@ -11,7 +11,7 @@ import torch
 import yaml
 from scipy.spatial.transform import Rotation
 
-from nbvdata.config import MeshConfig, SimConfig, load_config
+from nbvdata.config import SimConfig, load_config
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import builtin_object
@@ -358,6 +358,11 @@ def _bad_case(case: str, tmp_path: Path, scene) -> tuple[list[str], list[str]]:
         return ["--scans", str(good), "--center", "3,0,0"], ["no occupied voxel in the object box", "--center 3,0,0"]
     if case == "bad up":
         return scan_args + ["--up", "w"], ["--up 'w'", "x, y, z, -x, -y, -z"]
+    if case == "scene of another radius":
+        return scan_args + ["--set", "views.radius=0.5"], ["trained with views at 0.4 m", "views.radius 0.5 m",
+                                                           "--config"]
+    if case == "grid not .npy":
+        return scan_args + ["--save-grid", str(tmp_path / "grid.txt")], ["--save-grid", "name a .npy file"]
     if case == "centre outside the map":
         bt = _tree(tmp_path, np.array([[0.5, 0.0, 0.0], [0.5, 0.1, 0.1]]), [0.9, 0.0, 0.0])
         return ["--octomap", str(bt), "--center", "0,0,0"], ["--center 0,0,0 lies outside the map", str(bt)]
@@ -377,7 +382,8 @@ def _bad_case(case: str, tmp_path: Path, scene) -> tuple[list[str], list[str]]:
 BAD = ["empty cloud", "unreadable cloud", "missing cloud", "NaN points", "camera-frame cloud", "inverted pose",
        "pose with scale",
        "pose a reflection", "pose not 4x4", "no pose", "misspelt key", "quaternion not unit", "not a scans file",
-       "size 0", "size negative", "bad centre", "centre off the object", "bad up", "centre outside the map",
+       "size 0", "size negative", "bad centre", "centre off the object", "bad up", "scene of another radius",
+       "grid not .npy", "centre outside the map",
        "map not covering the box", "not an octomap", "max range with a map"]
 
 
