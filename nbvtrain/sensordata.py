@@ -15,9 +15,11 @@ A scans file (YAML, read with ``yaml.safe_load``) is a list of scans, each a map
 ``pose`` is the 4x4 camera-to-world transform, ``position`` + ``quaternion_xyzw`` the same
 transform as a translation and a unit quaternion (x, y, z, w order, scalar last, as ROS). The
 camera frame is the project's: +z along the optical axis, +x image right, +y image down (ROS
-``*_optical_frame``). Clouds are the scan's points **in the world frame**; checked by requiring
-that (almost) all of them lie in front of the sensor of their pose, which a camera-frame cloud, an
-inverted (world-to-camera) pose or a pose of a body frame with x forward fails.
+``*_optical_frame``). Clouds are the scan's points **in the world frame**; checked here by
+requiring that (almost) all of them lie in front of the sensor of their pose, which an inverted
+(world-to-camera) pose or a pose of a body frame with x forward fails, and in ``nbvtrain.plan``
+by refusing a cloud that lands in the object's box only once moved by its pose (camera-frame
+points of a sensor looking at the object lie in front of it too).
 """
 
 from __future__ import annotations
