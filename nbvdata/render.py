@@ -36,12 +36,13 @@ def render_state(
     others: Sequence[int] = (),
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
+    views_label: str = "candidate views",
 ) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
     The arguments are those of ``draw_state``.
     """
-    fig = draw_state(probabilities, extent, views, highlight, others, title, labels)
+    fig = draw_state(probabilities, extent, views, highlight, others, title, labels, views_label)
     fig.canvas.draw()
     pixels = np.asarray(fig.canvas.buffer_rgba())
     height = pixels.shape[0]
@@ -87,6 +88,7 @@ def draw_state(
     others: Sequence[int] = (),
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
+    views_label: str = "candidate views",
 ) -> Figure:
     """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
@@ -95,6 +97,7 @@ def draw_state(
     highlight : index into ``views`` of the view drawn as a red arrow
     others : indices drawn as orange arrows (e.g. the runner-up candidates)
     labels : what the red and the orange arrows are, for the legend
+    views_label : what the grey dots are, for the legend
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -122,7 +125,7 @@ def draw_state(
         positions = to_grid(views.positions)
         ax.scatter(*positions.T, s=3, c="0.55", depthshade=False)
         legend.append(Line2D([], [], linestyle="", marker="o", markersize=4, color="0.55",
-                             label=f"candidate views ({len(positions)})"))
+                             label=f"{views_label} ({len(positions)})"))
         arrows = [(i, "orange") for i in others] + ([(highlight, "red")] if highlight is not None else [])
         for index, color in arrows:
             start = positions[index]

@@ -1,7 +1,8 @@
-"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, score the
-baselines and evaluate planners in closed-loop reconstructions.
+"""The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, plan the NBV
+from a robot's scans or OctoMap, score the baselines and evaluate planners in closed-loop
+reconstructions.
 
-Expected user errors (a bad setting, a missing or broken shard or checkpoint) print one line
+Expected user errors (a bad setting, a missing or broken shard, checkpoint, cloud or map) print one line
 naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
 exits with 130.
 """
@@ -9,6 +10,7 @@ exits with 130.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -19,6 +21,7 @@ from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
 from nbvtrain import __version__
+from nbvtrain.sensordata import SensorDataError
 
 INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
                  "--index-url https://download.pytorch.org/whl/cpu)")
@@ -80,6 +83,33 @@ def cmd_predict(args: argparse.Namespace) -> int:
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
     print(prediction_json(prediction, predictor, source))
+    return 0
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    """Print the NBV for a robot's scans or OctoMap, in its world frame, as JSON."""
+    from nbvdata.config import SimConfig
+    from nbvtrain.plan import PlanError, parse_vector, plan, render_plan
+
+    for flag, path, suffix in (("--save-grid", args.save_grid, ".npy"), ("--png", args.png, ".png")):
+        if path is not None and path.suffix.lower() != suffix:
+            raise PlanError(f"{flag} {path}: name a {suffix} file")
+    config = load_config(SimConfig, args.config, args.overrides)
+    result = plan(parse_vector(args.center, "--center"), scans=args.scans, octomap=args.octomap, size=args.size,
+                  up=args.up, checkpoint=args.checkpoint, config=config, max_range=args.max_range, device=args.device)
+    answer = result.to_dict()
+    if result.octomap is not None and not result.octomap["exact"]:
+        print(f"nbvtrain plan: note: the map's voxels ({result.octomap['resolution']:g} m) are not the grid's "
+              f"({answer['grid']['voxel']:.4g} m, corner on a key boundary): each grid voxel took the map's leaf at "
+              "its centre", file=sys.stderr)
+    text = json.dumps(answer, indent=2)
+    for path, write in ((args.out, lambda p: p.write_text(text + "\n")),
+                        (args.save_grid, lambda p: np.save(p, result.grid)),
+                        (args.png, lambda p: render_plan(result, p))):
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write(path)
+    print(text)
     return 0
 
 
@@ -196,6 +226,37 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
 
+    plan = sub.add_parser("plan", help="the NBV for a robot's scans or OctoMap, in its world frame, as JSON",
+                          description="The next-best-view for an object in a robot's world frame, from its scans "
+                          "(clouds with sensor poses) or an OctoMap: the data is cropped to the object's box, "
+                          "scaled to the training scene (k = --size / mesh.object_size) and the network's answer "
+                          "is mapped back to the world frame. README: Using a trained network on your robot.")
+    source = plan.add_mutually_exclusive_group(required=True)
+    source.add_argument("--scans", type=Path, help="YAML list of scans, each {cloud: PATH, pose: 4x4 camera-to-world} "
+                        "or {cloud: PATH, position: [x, y, z], quaternion_xyzw: [x, y, z, w]}; clouds (.ply, .pcd, "
+                        ".xyz, .npy) hold world-frame points, paths relative to the file")
+    source.add_argument("--octomap", type=Path, help="an OctoMap in the world frame (.bt or .ot)")
+    plan.add_argument("--center", required=True, help="the object's centre x,y,z, world frame, metres "
+                      "(write --center=-1,2,3 when it starts with a minus)")
+    plan.add_argument("--size", type=float, help="the object's largest side, metres (default: the training scene's "
+                      "mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
+    plan.add_argument("--up", default="z", help="the world's vertical: x, y, z, -x, -y, -z or a vector a,b,c "
+                      "(default z)")
+    plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit, regression or classification "
+                      "(default: the released model)")
+    plan.add_argument("--max-range", type=float, help="with --scans: metres from the sensor beyond which a point "
+                      "marks nothing occupied and carves free space to that range (default sensor.far x k)")
+    plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
+                      "the default scene)")
+    plan.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                      help="override one scene setting, e.g. --set mesh.object_size=0.24")
+    plan.add_argument("--out", type=Path, help="also write the JSON to this file")
+    plan.add_argument("--save-grid", type=Path, help="write the grid the network saw (.npy, 32^3 probabilities, "
+                      "0.5 = unknown, object frame)")
+    plan.add_argument("--png", type=Path, help="write a picture of that grid with the scans and the chosen view")
+    plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    plan.set_defaults(func=cmd_plan)
+
     baselines = sub.add_parser("baselines", help="mean-direction and nearest-neighbour scores on a split")
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     baselines.add_argument("--split", choices=["random", "mesh"], default="random")
@@ -233,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ConfigError, ShardError) as error:
+    except (ConfigError, ShardError, SensorDataError) as error:
         print(f"nbvtrain {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,0 +1,161 @@
+"""The dataset in anyone's training code: a ``torch.utils.data.Dataset`` over shards or a
+published version, for a plain ``DataLoader`` with worker processes.
+
+Each item is a dict (the default collate stacks them into a batch)::
+
+    grid      (1, n, n, n) float32   occupancy probabilities, 0.5 = unknown (object frame, [x, y, z])
+    target    (3,) float32           the unit NBV position, what ``nbvtrain fit`` regresses
+    index     int                    the sample's global index (shard order, rows in order)
+    gains     (V,) float32           with scores=True: every candidate view's gain (``nbvdata.oracle``)
+    overlaps  (V,) float32           with scores=True: every candidate view's overlap
+    taken     (V,) bool              with view_state=True: the candidate views scanned so far
+
+Samples are read exactly as ``nbvtrain fit`` reads them (``nbvtrain.data.load_shards``: one
+merged palette, the same global indices, a published version's split parts), so a model trained
+here sees the data fit would. Grids are held in memory as palette codes while they fit in
+``memory_limit_gb`` (worker processes share them), else each worker process opens the shards
+itself and reads its samples lazily.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from nbvdata.manifest import Published, open_verified
+from nbvdata.shards import Shard, ShardError, shard_files
+from nbvtrain.data import LazyGrids, load_shards
+
+
+def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
+    """(N, V) bool: the candidate views each state has scanned.
+
+    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
+    view only); last_view : (N,) int the view scanned last. A run records its states at steps
+    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
+    by a state are the last views of its run's states up to its step. ValueError when a run's
+    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
+    """
+    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
+    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
+        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
+    taken = np.zeros((len(run), views), dtype=bool)
+    order = np.lexsort((step, run))
+    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
+    for rows in np.split(order, starts[1:]) if len(order) else []:
+        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
+            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
+                             "the views before a missing state are unknown")
+        scanned = np.zeros((len(rows), views), dtype=bool)
+        scanned[np.arange(len(rows)), last_view[rows]] = True
+        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
+    return taken
+
+
+class NBVDataset(torch.utils.data.Dataset):
+    """The samples of shards (files or folders) or of a published manifest (NAME-X.Y.Z.json).
+
+    With a manifest, ``part`` ("train", "val", "test"; None = every sample) of its ``split``
+    ("random" or "mesh") selects the samples, as ``nbvtrain fit MANIFEST --split ...`` trains and
+    validates on them; its shards are verified first (under ``root``, default the recorded one).
+    """
+
+    def __init__(self, source: str | Path | Sequence[str | Path], part: str | None = None, split: str = "random",
+                 root: str | Path | None = None, scores: bool = False, view_state: bool = False,
+                 memory_limit_gb: float = 8.0):
+        sources = [Path(source)] if isinstance(source, (str, Path)) else [Path(s) for s in source]
+        published: Published | None = None
+        if len(sources) == 1 and sources[0].suffix == ".json":
+            published = open_verified(sources[0], root)
+            paths = published.shard_paths
+        else:
+            if part is not None:
+                raise ShardError(f"part={part!r} needs a published manifest (NAME-X.Y.Z.json); on shards, take "
+                                 "indices from nbvtrain.data.split_indices and wrap in torch.utils.data.Subset")
+            paths = shard_files(sources)
+        data = load_shards(paths, memory_limit_gb)
+        self.paths, self.palette, self.targets = list(paths), data.palette, data.targets
+        if part is None:
+            self.indices = np.arange(len(data))
+        else:
+            parts = published.split(split)
+            if part not in parts:
+                raise ShardError(f"part={part!r}: {published.label}'s {split} split has {', '.join(parts)}")
+            self.indices = parts[part]
+        self.gains = self.overlaps = self.taken = None
+        if scores:
+            if data.gains is None:
+                raise ShardError("scores=True: these shards do not all hold gains for one common set of views "
+                                 "(imported data has none): use scores=False")
+            self.gains, self.overlaps = data.gains, self._column("overlaps", np.float32, "scores")
+        if view_state:
+            self.taken = self._view_state()
+        self._grids = data.grids
+        self._lazy = None
+        if isinstance(data.grids, LazyGrids):  # h5py handles do not cross processes: each opens its own
+            self._lazy = ([shard.path for shard in data.grids.shards], data.grids.offsets, data.grids.luts,
+                          data.grids.dtype)
+            data.grids.close()
+            self._grids, self._pid = None, None
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, item: int) -> dict:
+        index = int(self.indices[item])
+        codes = self._grid_source().take(np.array([index]))[0]
+        sample = {"grid": torch.from_numpy(self.palette[codes]).unsqueeze(0),
+                  "target": torch.from_numpy(self.targets[index].copy()), "index": index}
+        if self.gains is not None:
+            sample["gains"] = torch.from_numpy(self.gains[index].copy())
+            sample["overlaps"] = torch.from_numpy(self.overlaps[index].copy())
+        if self.taken is not None:
+            sample["taken"] = torch.from_numpy(self.taken[index].copy())
+        return sample
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        if self._lazy is not None:
+            state["_grids"], state["_pid"] = None, None
+        return state
+
+    def close(self) -> None:
+        """Close the shards a lazy dataset opened in this process."""
+        if self._grids is not None:
+            self._grids.close()
+            if self._lazy is not None:
+                self._grids = None
+
+    def _grid_source(self):
+        if self._lazy is not None and (self._grids is None or self._pid != os.getpid()):
+            self._grids, self._pid = LazyGrids(*self._lazy), os.getpid()
+        return self._grids
+
+    def _column(self, name: str, dtype: type, wanted: str) -> np.ndarray:
+        """One per-sample dataset of every shard, concatenated in sample order."""
+        columns = []
+        for path in self.paths:
+            with Shard(path) as shard:
+                if not shard.has(name):
+                    raise ShardError(f"{path}: no {name} (imported data): use {wanted}=False")
+                columns.append(shard[name].astype(dtype))
+        return np.concatenate(columns)
+
+    def _view_state(self) -> np.ndarray:
+        parts = []
+        for path in self.paths:
+            with Shard(path) as shard:
+                if not shard.has("last_view"):
+                    raise ShardError(f"{path}: no last_view (imported data), so no view state: use view_state=False")
+                try:
+                    parts.append(view_state(shard["run"], shard["step"], shard["last_view"],
+                                            len(shard["view_positions"])))
+                except ValueError as error:
+                    raise ShardError(f"{path}: {error}") from None
+        if len({part.shape[1] for part in parts}) > 1:
+            raise ShardError("view_state=True: the shards have different numbers of candidate views: load one kind")
+        return np.concatenate(parts)
