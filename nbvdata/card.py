@@ -107,7 +107,7 @@ def card_text(content: dict, summary: Summary, present: set[str], manifest_path:
               f"- Check a copy: `nbvdata verify {manifest} [--root SHARDS_DIR]`",
               f"- Train on it: `nbvtrain fit {manifest}"
               f"{'' if 'unavailable' in content['splits']['mesh'] else ' [--split mesh]'}`", "",
-              "## How it was made", "", *_made(content), "",
+              "## How it was made", "", *_made(content, summary.policies), "",
               f"## Splits (seed {content['splits']['seed']})", "", *_splits(content["splits"]), "",
               f"## Schema (version {content['schema_version']})", "",
               "The samples of the shards, N per shard, V candidate views, n = grid size "
@@ -168,7 +168,7 @@ def _what(content: dict, view_count: int) -> str:
             "most surface while overlapping enough of what is already seen.")
 
 
-def _made(content: dict) -> list[str]:
+def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
     config = content["config"]
     commit = content["git_commit"]
     at = f" at commit `{commit[:12]}`{' with uncommitted changes' if content['git_dirty'] else ''}" if commit else ""
@@ -185,17 +185,39 @@ def _made(content: dict) -> list[str]:
              f"{100 * episode['min_gain']:g} % of the observable surface; every state labelled by exhaustive "
              f"search over the views that overlap at least {100 * oracle['min_overlap']:g} % of what is already "
              f"covered; global seed {episode['seed']}.",
+             *_moves(episode, oracle, policies),
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
-    command = _reproduce(content)
+    command = _reproduce(content, policies)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "
                  "bytes are the published ones (everything is seeded, independent of the number of workers and "
                  "of the CPU's instruction set), and `--content` whether the arrays are, when other library "
-                 "versions wrote the files differently." if command else
+                 "versions wrote the files differently."
+                 + (" A policy's moves come from its network's floating-point arithmetic, which other torch "
+                    "builds or CPUs may round differently: there, expect other runs." if policies else "")
+                 if command else
                  "- Made with the `nbvdata.generate` API from the meshes listed below and these settings.")
     return lines + [published]
 
 
-def _reproduce(content: dict) -> str | None:
+def _moves(episode: dict, oracle: dict, policies: set[str]) -> list[str]:
+    """How the runs left the oracle's path (exploration, a policy), or nothing when they did not."""
+    lines = []
+    explore, mix = episode.get("explore", 0.0), episode.get("oracle_mix", 0.0)
+    if explore:
+        lines.append(f"- Exploration: at each move, with probability {explore:g} the run moved to a uniformly random "
+                     f"view overlapping at least {100 * oracle['min_overlap']:g} % of what was covered instead of "
+                     "the NBV (`episode.explore`); every state is still labelled exactly, and the shards record "
+                     "each move (`move`, `next_view`, `next_pose`).")
+    for text in sorted(policies):
+        policy = json.loads(text)
+        mixed = f", mixed with the oracle's moves with probability {mix:g} (`episode.oracle_mix`)" if mix else ""
+        lines.append(f"- A learned-policy rollout (a DAgger round): the runs moved where the trained planner "
+                     f"{policy.get('network') or 'of the checkpoint'} (sha256 `{policy['sha256']}`) chose{mixed}, its "
+                     "continuous poses scanned as they are; every state is labelled exactly.")
+    return lines
+
+
+def _reproduce(content: dict, policies: set[str] = frozenset()) -> str | None:
     """The ``nbvdata generate`` command that makes these shards again, or None if the CLI cannot."""
     sources = {mesh["source"] for mesh in content["meshes"]}
     builtin = {f"builtin:{name}" for name in BUILTIN_SHAPES}
@@ -212,7 +234,8 @@ def _reproduce(content: dict) -> str | None:
     per_shard = max(stop - start for start, stop in (shard["runs"] for shard in content["shards"]))
     if per_shard < content["config"]["episode"]["runs_per_mesh"]:  # the shard files' names depend on it
         changed.append(f" --set generate.runs_per_shard={per_shard}")
-    return f"nbvdata generate{meshes} --out {Path(content['root']).name}{''.join(changed)}"
+    policy = " --policy CHECKPOINT" if policies else ""  # the checkpoint of the sha256 above
+    return f"nbvdata generate{meshes} --out {Path(content['root']).name}{policy}{''.join(changed)}"
 
 
 def _splits(splits: dict) -> list[str]:

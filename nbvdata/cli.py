@@ -113,12 +113,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
     from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources
+    from nbvdata.policy import PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
+             "episode.explore": args.explore, "episode.oracle_mix": args.oracle_mix,
              "generate.workers": args.workers, "generate.backend": args.backend,
              "generate.scheduler": args.scheduler}
     overrides = args.overrides + [f"{key}={value}" for key, value in flags.items() if value is not None]
     config = load_config(SimConfig, args.config, overrides)
+    policy = PolicySource.from_path(args.policy) if args.policy is not None else None
     if args.meshes is None:
         sources, failures = builtin_sources(config.mesh), []
     else:
@@ -128,7 +131,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     print(f"nbvdata generate: {plural(len(sources), 'mesh')} x {plural(config.episode.runs_per_mesh, 'run')} "
           f"({plural(units, 'shard')}) -> {args.out}")
     try:
-        report = generate(sources, args.out, config, failures, show_progress=args.progress)
+        report = generate(sources, args.out, config, failures, show_progress=args.progress, policy=policy)
     except KeyboardInterrupt:
         print(f"nbvdata generate: interrupted; finished shards are kept, run the same command "
               f"again to continue", file=sys.stderr)
@@ -359,6 +362,13 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--workers", type=int, help="parallel workers, 0 = one per core (generate.workers)")
     gen.add_argument("--runs-per-mesh", type=int, help="runs per mesh (episode.runs_per_mesh)")
     gen.add_argument("--seed", type=int, help="global seed (episode.seed)")
+    gen.add_argument("--explore", type=float, metavar="EPSILON", help="probability that a move goes to a random "
+                     "valid view instead of the NBV; every state is still labelled exactly (episode.explore, "
+                     "default 0)")
+    gen.add_argument("--policy", type=Path, metavar="CHECKPOINT", help="runs move where this trained planner "
+                     "(nbvtrain fit's best.pt) would, every state labelled exactly: a DAgger round; needs torch")
+    gen.add_argument("--oracle-mix", type=float, metavar="BETA", help="with --policy: probability that a move "
+                     "follows the oracle instead (episode.oracle_mix, default 0)")
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],
                      help="joblib backend (generate.backend)")
     gen.add_argument("--scheduler", help="Dask scheduler address for --backend dask (generate.scheduler)")

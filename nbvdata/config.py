@@ -159,12 +159,21 @@ class EpisodeConfig:
     """A run stops when no valid view would raise the observable coverage by at least this."""
     seed: int = 0
     """Global seed; each mesh's and run's seeds derive from it and the mesh id."""
+    explore: float = 0.0
+    """Exploration: at each move, with this probability the run moves to a uniformly random valid
+    candidate view (overlap >= ``oracle.min_overlap``) instead of the labelled NBV; every state is
+    still labelled by the exhaustive search. 0 = the oracle's own path (the data of before)."""
+    oracle_mix: float = 0.0
+    """With ``nbvdata generate --policy``: the probability that a move (one not exploring) follows the
+    oracle's NBV instead of the policy (DAgger's beta). 0 = the policy's moves only."""
 
     def __post_init__(self) -> None:
         _check(self.runs_per_mesh >= 1, f"episode.runs_per_mesh={self.runs_per_mesh}: must be >= 1")
         _check(self.max_scans >= 1, f"episode.max_scans={self.max_scans}: must be >= 1")
         _check(0 <= self.min_gain <= 1, f"episode.min_gain={self.min_gain}: must be in [0, 1]")
         _check(self.seed >= 0, f"episode.seed={self.seed}: must be >= 0")
+        _check(0 <= self.explore <= 1, f"episode.explore={self.explore}: must be in [0, 1] (0 = no exploration)")
+        _check(0 <= self.oracle_mix <= 1, f"episode.oracle_mix={self.oracle_mix}: must be in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -208,10 +217,20 @@ class SimConfig:
         return self.grid
 
     def dataset_dict(self) -> dict[str, Any]:
-        """The settings that determine the generated data (all but ``generate``)."""
+        """The settings that determine the generated data (all but ``generate``); those of
+        ``NEUTRAL_DEFAULTS`` only when they differ from their default."""
         data = to_dict(self)
         del data["generate"]
+        for (section, key), default in NEUTRAL_DEFAULTS.items():
+            if data[section][key] == default:
+                del data[section][key]
         return data
+
+
+# Settings added after datasets were published, whose default leaves the data as it was before
+# them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
+# recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
+NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -10,11 +10,22 @@ With a noise-free sensor (the default) every scan comes from a fixed candidate v
 deterministic, so a view's grid update and covered points are computed once per mesh and
 reused (``ViewCache``): a run then costs a few array operations per state. With range noise
 every scan is cast and integrated afresh, seeded by the run's seed.
+
+A run may also leave the oracle's path, to reach the states a learned planner reaches (a
+``Mover``): with probability ``episode.explore`` a move goes to a uniformly random valid view,
+and with a policy (``nbvdata.policy``) the moves are the policy's, mixed with the oracle's by
+``episode.oracle_mix``. The labels stay exact: every state is still scored exhaustively. A
+policy's pose that is no candidate view is scanned live, whatever the sensor.
+
+Random streams, all from the global seed and the mesh id (``SeedSequence`` spawn keys): 0 the
+reference points, 1 the start views, 2 a run's range noise, 4 a run's moves and its policy
+(3 is left to ``nbvtrain evaluate``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +33,13 @@ from nbvdata.grid import OccupancyGrid, ScanUpdate
 from nbvdata.oracle import pack_bits, popcount
 from nbvdata.scene import Scene
 from nbvdata.views import Pose
+
+if TYPE_CHECKING:
+    from nbvdata.policy import Policy
+
+# How a run leaves a state: the shards' ``move`` codes (``nbvdata.shards.MOVE_RULES``);
+# NO_MOVE: the run ended at that state.
+ORACLE, EXPLORE, POLICY, NO_MOVE = 0, 1, 2, -1
 
 
 class ViewCache:
@@ -88,9 +106,52 @@ class RunRecord:
     overlaps: list[np.ndarray] = field(default_factory=list)
     coverage: list[tuple[float, float]] = field(default_factory=list)
     last_view: list[int] = field(default_factory=list)
+    move: list[int] = field(default_factory=list)
+    next_view: list[int] = field(default_factory=list)
+    next_pose: list[np.ndarray] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.nbv_index)
+
+
+@dataclass
+class Mover:
+    """How a run leaves each state: by default to the labelled NBV (``ORACLE``). With
+    ``explore`` > 0, with that probability to a uniformly random valid view (``EXPLORE``); with a
+    ``policy``, otherwise to the policy's move (``POLICY``) but with probability ``oracle_mix`` to
+    the NBV. ``rng`` draws one number per move (and the explored view): a run's own stream.
+    """
+
+    explore: float = 0.0
+    policy: Policy | None = None
+    oracle_mix: float = 0.0
+    rng: np.random.Generator | None = None
+
+    @classmethod
+    def for_run(cls, explore: float, policy: Policy | None, oracle_mix: float, seed: int, mesh_id: str,
+                run: int) -> "Mover":
+        """Run ``run``'s mover, its streams spawned from the global seed, the mesh id and the run
+        (spawn key 4), so neither the range noise nor the number of workers changes them."""
+        moves, policy_stream = np.random.SeedSequence(_mesh_key(seed, mesh_id), spawn_key=(4, run)).spawn(2)
+        if policy is not None:
+            policy.start(policy_stream)
+        return cls(explore, policy, oracle_mix, np.random.default_rng(moves))
+
+    @property
+    def follows_oracle(self) -> bool:
+        """Whether every move is the NBV (no draws: the data of before exploration existed)."""
+        return self.explore == 0 and self.policy is None
+
+    def rule(self) -> int:
+        """The rule of the next move: ORACLE, EXPLORE or POLICY."""
+        if self.follows_oracle:
+            return ORACLE
+        draw = self.rng.random()
+        if draw < self.explore:
+            return EXPLORE
+        if self.policy is not None and draw >= self.explore + (1 - self.explore) * self.oracle_mix:
+            return POLICY
+        return ORACLE
 
 
 def _mesh_key(seed: int, mesh_id: str) -> list[int]:
@@ -115,14 +176,16 @@ def run_seed(seed: int, mesh_id: str, run: int) -> int:
 
 
 def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
-                       cache: ViewCache | None) -> RunRecord:
-    """One labelled run from ``start_view``; ``rng`` draws the range noise, if any."""
+                       cache: ViewCache | None, mover: Mover | None = None) -> RunRecord:
+    """One labelled run from ``start_view``; ``rng`` draws the range noise, if any; ``mover``
+    chooses the moves (default: always the NBV)."""
     config = scene.config
     oracle = scene.oracle
+    mover = mover if mover is not None else Mover()
     record = RunRecord()
     state = Reconstruction(scene, cache, rng)
     state.scan(start_view)
-    last = start_view
+    last, poses = start_view, [scene.views[start_view]]
     while True:
         scores = oracle.score(state.covered)
         nbv = scores.best(config.oracle.min_overlap, config.episode.min_gain)
@@ -136,7 +199,36 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
                                 oracle.observable_coverage(state.covered | oracle.visible[nbv])))
         record.last_view.append(last)
         if state.scans >= config.episode.max_scans:
+            record.move.append(NO_MOVE)
+            record.next_view.append(-1)
+            record.next_pose.append(np.full(6, np.nan))
             break
-        state.scan(nbv)
-        last = nbv
+        rule = mover.rule()
+        if rule == EXPLORE:
+            valid = np.flatnonzero(scores.overlaps >= config.oracle.min_overlap)  # the NBV is one
+            move: int | Pose = int(valid[mover.rng.integers(len(valid))])
+        elif rule == POLICY:
+            move = _policy_move(mover.policy, state.grid.probabilities(), tuple(poses), len(scene.views))
+        else:
+            move = nbv
+        if isinstance(move, Pose):
+            state.scan_pose(move)  # no candidate view: cast live
+            last, pose = -1, move
+        else:
+            state.scan(move)
+            last, pose = move, scene.views[move]
+        poses.append(pose)
+        record.move.append(rule)
+        record.next_view.append(last)
+        record.next_pose.append(pose.xyzypr)
     return record
+
+
+def _policy_move(policy: Policy, probabilities: np.ndarray, poses: tuple[Pose, ...], views: int) -> int | Pose:
+    """The policy's move, checked: a candidate view's index in range, or a Pose."""
+    move = policy.next_move(probabilities, poses)
+    if isinstance(move, Pose):
+        return move
+    if isinstance(move, (int, np.integer)) and 0 <= move < views:
+        return int(move)
+    raise ValueError(f"policy {policy.name} moved to {move!r}: expected a Pose or a view index in 0..{views - 1}")

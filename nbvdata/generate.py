@@ -10,11 +10,17 @@ cannot be used is reported and listed in ``failures.tsv``; the others go on.
 Several processes, on one machine or on several sharing a filesystem, may run the same job into
 one folder at once: each unit is claimed by one of them (``nbvdata.claims``), the others leave it
 to that one and go on with the rest.
+
+With a policy (``--policy``, ``nbvdata.policy``) the runs follow a trained planner: every worker
+loads it from the checkpoint's path itself, the folder's ``policy.yaml`` and every shard's
+``policy`` attribute record the checkpoint's sha256, and a folder holds the runs of one policy
+(or of none).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -33,13 +39,15 @@ import yaml
 from nbvdata import __version__
 from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials
 from nbvdata.config import ConfigError, MeshConfig, SimConfig
-from nbvdata.episode import ViewCache, run_reconstruction, run_seed, scene_rng, start_view
+from nbvdata.episode import Mover, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
+from nbvdata.policy import PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import GENERATED, GridPalette, Shard, ShardError, write_shard
+from nbvdata.shards import GENERATED, MOVES, GridPalette, Shard, ShardError, write_shard
 
 CONFIG_FILE = "config.yaml"
+POLICY_FILE = "policy.yaml"
 FAILURES_FILE = "failures.tsv"
 
 
@@ -142,11 +150,12 @@ class Timer:
 
 
 def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None = None,
-             threads: int = 0) -> UnitResult:
+             threads: int = 0, policy: PolicySource | None = None) -> UnitResult:
     """Claim the unit, simulate and label its runs and write its shard. Never raises for a bad
     mesh: the reason comes back in ``UnitResult.error``. A unit another process holds, or has
     finished, is left to it (``UnitResult.elsewhere``). ``progress(runs, samples)`` is called per
-    run. ``threads`` > 0 limits numba and open3d to that many threads (parallel workers pass 1)."""
+    run. ``threads`` > 0 limits numba, open3d and torch to that many threads (parallel workers
+    pass 1). ``policy``: the checkpoint the runs follow (loaded here, once per process)."""
     out_dir = Path(out_dir)
     with claim(out_dir, unit.shard_name) as mine:
         if not mine:
@@ -156,11 +165,11 @@ def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[i
             return UnitResult(unit, elsewhere="done")
         shard.unlink(missing_ok=True)  # broken: redone
         drop_partials(out_dir, unit.shard_name)  # a dead process's: the claim is ours
-        return _run_claimed(unit, config, out_dir, progress, threads)
+        return _run_claimed(unit, config, out_dir, progress, threads, policy)
 
 
 def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None,
-                 threads: int) -> UnitResult:
+                 threads: int, policy: PolicySource | None = None) -> UnitResult:
     """``run_unit`` once the unit is claimed."""
     result = UnitResult(unit)
     timer = Timer()
@@ -174,16 +183,23 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         with timer("scene"):
             scene = Scene.build(obj, config, scene_rng(seed, mesh_id), threads)
         cache = ViewCache(scene) if config.sensor.noise_std == 0 else None
+        with timer("policy"):
+            planner = load_policy(policy, config.views.radius, threads) if policy is not None else None
+        episode = config.episode
+        recorded = ("nbv_index", "gains", "overlaps", "coverage", "last_view")
+        if episode.explore > 0 or planner is not None:  # off the oracle's path: record the moves
+            recorded += tuple(sorted(MOVES))
         columns: dict[str, list] = defaultdict(list)
         palette = GridPalette()
         for run in range(*unit.runs):
             rng_seed = run_seed(seed, mesh_id, run)
+            mover = Mover.for_run(episode.explore, planner, episode.oracle_mix, seed, mesh_id, run)
             with timer("runs"):
                 record = run_reconstruction(scene, start_view(seed, mesh_id, len(scene.views), run),
-                                            np.random.default_rng(rng_seed), cache)
+                                            np.random.default_rng(rng_seed), cache, mover)
             with timer("encode"):
                 columns["grids"].extend(palette.encode(log_odds) for log_odds in record.log_odds)
-            for name in ("nbv_index", "gains", "overlaps", "coverage", "last_view"):
+            for name in recorded:
                 columns[name].extend(getattr(record, name))
             columns["run"].extend([run] * len(record))
             columns["step"].extend(range(1, len(record) + 1))
@@ -200,6 +216,8 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
                 "runs": np.array(unit.runs, dtype=np.int64),
                 "source": GENERATED,
             }
+            if policy is not None:
+                attrs["policy"] = json.dumps(dataclasses.replace(policy, name=planner.name).record())
             write_shard(out_dir / unit.shard_name, arrays, attrs, partial_path(out_dir / unit.shard_name))
         result.samples = len(arrays["nbv_index"])
     except MeshError as error:
@@ -234,7 +252,11 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
         "seed": np.asarray(columns["seed"], dtype=np.int64),
         "view_positions": scene.views.positions,
         "view_poses": xyzypr,
-    }
+    } | ({
+        "move": np.asarray(columns["move"], dtype=np.int8),
+        "next_view": np.asarray(columns["next_view"], dtype=np.int32),
+        "next_pose": np.asarray(columns["next_pose"], dtype=np.float64).reshape(count, 6),
+    } if "move" in columns else {})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -259,24 +281,44 @@ class Report:
         return sum(r.samples for r in self.done)
 
 
-def prepare_out_dir(out_dir: Path, config: SimConfig) -> None:
-    """Create ``out_dir``, or check that the dataset there was made with the same data settings;
-    delete the partial files of killed runs (not those of runs still going)."""
+def prepare_out_dir(out_dir: Path, config: SimConfig, policy: PolicySource | None = None) -> None:
+    """Create ``out_dir``, or check that the dataset there was made with the same data settings
+    and the same policy (or none); delete the partial files of killed runs (not those of runs
+    still going)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    settings = out_dir / CONFIG_FILE
+    settings, policy_file = out_dir / CONFIG_FILE, out_dir / POLICY_FILE
     wanted = config.dataset_dict()
     with folder_lock(out_dir):  # one process writes config.yaml, the others check it
         if settings.exists():
             existing = yaml.safe_load(settings.read_text()) or {}
             if existing != wanted:
-                differ = sorted(f"{section}.{key}" for section in wanted for key in wanted[section]
-                                if existing.get(section, {}).get(key) != wanted[section][key])
+                sections = list(wanted) + [section for section in existing if section not in wanted]
+                differ = sorted({f"{section}.{key}" for section in sections
+                                 for key in [*wanted.get(section, {}), *existing.get(section, {})]
+                                 if existing.get(section, {}).get(key) != wanted.get(section, {}).get(key)})
                 raise ConfigError(f"{out_dir} holds shards made with other settings ({', '.join(differ)}): "
                                   "use a new --out folder, or the settings in "
                                   f"{settings} to resume")
-        else:
+            followed = yaml.safe_load(policy_file.read_text()) if policy_file.exists() else None
+            if (followed or {}).get("sha256") != (policy.sha256 if policy else None):
+                raise ConfigError(f"{out_dir} holds runs that follow {_policy_words(followed)}, not "
+                                  f"{_policy_words(policy.record() if policy else None)}: use a new --out folder"
+                                  + (f", or --policy with the checkpoint of sha256 {followed['sha256']} to resume"
+                                     if followed else ", or leave out --policy to resume"))
+        else:  # policy.yaml first: config.yaml marks the folder as begun
+            if policy is not None:
+                _write_atomically(policy_file, yaml.safe_dump(policy.record(), sort_keys=False))
+            else:
+                policy_file.unlink(missing_ok=True)  # left by a job killed before it began
             _write_atomically(settings, yaml.safe_dump(wanted, sort_keys=False))
     sweep_partials(out_dir)
+
+
+def _policy_words(record: dict | None) -> str:
+    """"the oracle" or "the policy nbvnet-4-5 epoch 12 (sha256 0123456789ab...)"."""
+    if record is None:
+        return "the oracle (no --policy)"
+    return f"the policy {record.get('network') or 'checkpoint'} (sha256 {record['sha256'][:12]}...)"
 
 
 def _write_atomically(path: Path, text: str) -> None:
@@ -306,18 +348,25 @@ def _completed(path: Path) -> bool:
 
 
 def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
-             failures: list[tuple[str, str]] = (), show_progress: bool | None = None) -> Report:
+             failures: list[tuple[str, str]] = (), show_progress: bool | None = None,
+             policy: PolicySource | None = None) -> Report:
     """Run every unit not yet in ``out_dir`` and not claimed by another process; returns what was
     done, skipped, failed and left to others.
 
     Units another process held are tried again after the others: those it has given up (killed)
-    are done here. ``show_progress`` None shows the bar only on a terminal.
+    are done here. ``show_progress`` None shows the bar only on a terminal. ``policy``: the
+    checkpoint the runs follow (loaded here first, so that a bad one fails at once).
     """
     from tqdm import tqdm
 
     start = time.perf_counter()
     out_dir = Path(out_dir)
-    prepare_out_dir(out_dir, config)
+    if policy is None and config.episode.oracle_mix > 0:
+        raise ConfigError(f"episode.oracle_mix={config.episode.oracle_mix} mixes oracle moves into a policy's: "
+                          "pass --policy CHECKPOINT too, or leave it 0")
+    if policy is not None:
+        policy = check_policy(policy, config.views.radius)
+    prepare_out_dir(out_dir, config, policy)
     report = Report(out_dir, failures=list(failures))
     for name, reason in failures:
         print(f"nbvdata generate: failed: {name}: {reason}", file=sys.stderr)
@@ -352,7 +401,7 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
             bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {result.error}", file=sys.stderr)
 
     try:
-        with _executor(config, out_dir, workers, advance) as (execute, ticked):
+        with _executor(config, out_dir, workers, advance, policy) as (execute, ticked):
             while todo:
                 for result in execute(todo):
                     finished(result, ticked)
@@ -370,14 +419,15 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
 
 
 @contextlib.contextmanager
-def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[[int, int], None]
+def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[[int, int], None],
+              policy: PolicySource | None = None
               ) -> Iterator[tuple[Callable[[list[Unit]], Iterator[UnitResult]], bool]]:
     """``(execute, ticked)``: ``execute(units)`` runs units and yields their results as they come
     back, in-process or on a joblib backend (one thread per worker); ``ticked``: their runs are
     counted through ``advance`` one by one. Each worker claims its unit itself (``run_unit``), so
     the claim is held by the process that writes the shard, whatever the backend."""
     if workers == 1 and config.generate.backend != "dask":
-        yield (lambda units: (run_unit(unit, config, out_dir, advance) for unit in units)), True
+        yield (lambda units: (run_unit(unit, config, out_dir, advance, policy=policy) for unit in units)), True
         return
     import joblib
 
@@ -400,7 +450,7 @@ def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[
         progress = _QueueProgress(ticks) if ticks is not None else None
 
         def execute(units: list[Unit]) -> Iterator[UnitResult]:
-            calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1) for unit in units)
+            calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1, policy) for unit in units)
             yield from joblib.Parallel(return_as="generator_unordered")(calls)
 
         yield execute, ticks is not None

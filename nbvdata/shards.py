@@ -25,6 +25,13 @@ Datasets::
     seed           (N,) int64            the run's seed (its range noise, if any)
     view_positions (V, 3) float64        candidate view positions, metres
     view_poses     (V, 6) float64        candidate view poses (x, y, z, yaw, pitch, roll)
+    move           (N,) int8             how the run left the state: 0 to the NBV (oracle), 1 to a random
+                                         valid view (explore), 2 where the policy chose (policy), -1 not
+                                         at all (the run ended there); only in runs off the oracle's path
+    next_view      (N,) int32            the view scanned next (-1: none, or a pose that is no candidate
+                                         view); only in runs off the oracle's path
+    next_pose      (N, 6) float64        the pose scanned next, as nbv_pose (NaN: none); only in runs
+                                         off the oracle's path
 
 Optional datasets (``OPTIONAL``): ``gains``, ``overlaps``, ``coverage``, ``mesh_id``,
 ``last_view``, ``seed`` and ``view_poses`` may be absent: a shard imported from a dataset that
@@ -32,10 +39,21 @@ did not publish them (``nbvdata import-legacy``) leaves them out rather than inv
 ``nbvdata generate`` always writes all of them (a generated shard without one is incomplete).
 ``Shard.has(name)`` tells.
 
+Runs off the oracle's path (``MOVES``): when a run always moves to the NBV, ``last_view`` of the
+next state is the label and nothing more needs recording; such shards (``episode.explore`` 0,
+no ``--policy``) hold no ``move``, ``next_view`` or ``next_pose``, byte for byte the shards of
+before these datasets existed. A generated shard whose runs explore (its ``config`` has
+``episode.explore`` > 0) or follow a policy (it has the ``policy`` attribute) holds all three.
+There ``nbv_index`` is still the exact label of every state, but the next state follows
+``next_view``/``next_pose``; ``last_view`` is -1 after a pose that is no candidate view (that
+pose is the previous sample's ``next_pose``), and ``coverage[:, 1]`` is still what the NBV
+would have reached. New datasets that old readers ignore: the schema version stays 1.
+
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
 determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
 ``runs`` ([first, stop) run numbers of the unit), ``source`` ("nbvdata generate", or what was
-imported; absent in the first shards written, which mean "nbvdata generate").
+imported; absent in the first shards written, which mean "nbvdata generate"), ``policy`` (JSON
+{"sha256", "network"} of the checkpoint the runs followed; only with ``--policy``).
 
 A shard is written under a temporary name and renamed when complete: it is whole or absent.
 """
@@ -71,10 +89,15 @@ PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
     "step": (np.int32, lambda v, n: ()),
     "last_view": (np.int32, lambda v, n: ()),
     "seed": (np.int64, lambda v, n: ()),
+    "move": (np.int8, lambda v, n: ()),
+    "next_view": (np.int32, lambda v, n: ()),
+    "next_pose": (np.float64, lambda v, n: (6,)),
 }
 PER_SHARD = ("grid_palette", "view_positions", "view_poses")
 GENERATED = "nbvdata generate"  # the ``source`` attribute of generated shards: nothing optional
 OPTIONAL = frozenset({"gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"})
+MOVES = frozenset({"move", "next_view", "next_pose"})  # only in runs off the oracle's path
+MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 mean
 
 
 class ShardError(ValueError):
@@ -123,11 +146,11 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
     """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
     rename over ``path``.
 
-    ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` ones may be left out);
-    ``attrs`` every attribute but the version.
+    ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` and ``MOVES`` ones may be left
+    out); ``attrs`` every attribute but the version.
     """
     path = Path(path)
-    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL)
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES)
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
@@ -201,7 +224,10 @@ class Shard:
             raise ShardError(f"{self.path}: schema version {int(version)}, this nbvdata reads "
                              f"{SCHEMA_VERSION}: regenerate the shard or install a matching nbvdata")
         source = str(attrs.get("source", GENERATED))
+        config = yaml.safe_load(attrs["config"])
         optional = OPTIONAL if source != GENERATED else frozenset()
+        if not off_oracle_path(config, attrs):
+            optional |= MOVES
         missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file and name not in optional]
         if missing:
             raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
@@ -211,7 +237,7 @@ class Shard:
         if wrong:
             raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {plural(samples, 'sample')}: "
                              "delete it and run nbvdata generate again")
-        return ShardInfo(self.path, samples, yaml.safe_load(attrs["config"]), json.loads(attrs["meshes"]),
+        return ShardInfo(self.path, samples, config, json.loads(attrs["meshes"]),
                          tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]),
                          source)
 
@@ -261,6 +287,13 @@ class Shard:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def off_oracle_path(config: dict, attrs) -> bool:
+    """Whether a shard's runs left the oracle's path (they explore or follow a policy), from its
+    ``config`` and attributes: then it holds the ``MOVES`` datasets."""
+    episode = config.get("episode", {}) if isinstance(config, dict) else {}
+    return episode.get("explore", 0.0) > 0 or "policy" in attrs
 
 
 def shard_files(items: list[Path]) -> list[Path]:

@@ -3,10 +3,13 @@ the views. Backs ``nbvdata inspect``; reads everything but the grids.
 
 Imported shards (no ``mesh_id``) count under one entry per dataset, named by their ``source``
 without its row range; statistics of datasets they lack (gains, overlaps, coverage) show "-".
+Shards whose runs left the oracle's path (``move``: exploration, a policy) add how the runs
+moved and which policy they followed.
 """
 
 from __future__ import annotations
 
+import json
 import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
@@ -14,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.shards import Shard, ShardError
+from nbvdata.shards import MOVE_RULES, Shard, ShardError
 from nbvdata.text import plural
 
 
@@ -50,6 +53,9 @@ class Summary:
     valid_share: list[np.ndarray] = field(default_factory=list)
     configs: set[str] = field(default_factory=set)
     problems: list[str] = field(default_factory=list)
+    moves: Counter = field(default_factory=Counter)  # rule code (see MOVE_RULES): moves made by it
+    off_label: int = 0  # moves to another view or pose than the state's label
+    policies: set[str] = field(default_factory=set)  # JSON ``policy`` attributes
 
 
 def dataset_name(source: str) -> str:
@@ -86,6 +92,12 @@ def summarise(paths: list[Path]) -> Summary:
             runs, steps, nbv = shard["run"], shard["step"], shard["nbv_index"]
             coverage = shard["coverage"] if shard.has("coverage") else None
             summary.nbv_counts.update(nbv.tolist())
+            if "policy" in shard.file.attrs:
+                summary.policies.add(str(shard.file.attrs["policy"]))
+            if shard.has("move"):
+                move, moved = shard["move"], shard["move"] >= 0
+                summary.moves.update(move[moved].tolist())
+                summary.off_label += int((shard["next_view"][moved] != nbv[moved]).sum())
             if shard.has("gains"):
                 summary.best_gain.append(shard["gains"][np.arange(len(nbv)), nbv])
             if shard.has("overlaps"):
@@ -130,9 +142,24 @@ def format_summary(summary: Summary, top: int = 10) -> str:
                   f"valid views per state: median {_median(summary.valid_share, '.0f')}",
                   f"most frequent NBVs (view: samples): " + ", ".join(
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
+    lines += _moves(summary)
     for problem in summary.problems:
         lines.append(f"unreadable: {problem}")
     return "\n".join(lines)
+
+
+def _moves(summary: Summary) -> list[str]:
+    """How the runs moved, when they left the oracle's path (nothing otherwise)."""
+    moved = sum(summary.moves.values())
+    if not moved:
+        return []
+    shares = ", ".join(f"{rule} {100 * summary.moves[code] / moved:.1f}%" for code, rule in enumerate(MOVE_RULES))
+    lines = [f"moves: {plural(moved, 'move')} by rule: {shares}; "
+             f"{100 * summary.off_label / moved:.1f}% went elsewhere than the state's label"]
+    for text in sorted(summary.policies):
+        policy = json.loads(text)
+        lines.append(f"policy followed: {policy.get('network') or 'a checkpoint'}, checkpoint sha256 {policy['sha256']}")
+    return lines
 
 
 def _median(parts: list[np.ndarray], spec: str) -> str:

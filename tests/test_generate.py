@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 import trimesh
@@ -20,7 +21,7 @@ from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources, plan_units
 from nbvdata.shapes import builtin_object
-from nbvdata.shards import Shard
+from nbvdata.shards import Shard, ShardError
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 DATA = [name for name in ("grids", "grid_palette", "nbv_index", "nbv_pose", "nbv_position", "gains",
@@ -389,3 +390,132 @@ def test_a_mesh_whose_shards_are_all_there_leaves_failures_tsv(tmp_path, sources
     report = generate(sources[:1], tmp_path, _config("generate.workers=1"))
     assert report.done and not report.failures
     assert (tmp_path / FAILURES_FILE).read_text() == "mesh\treason\n/elsewhere/chair.obj\tMeshError: no faces\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# Exploration moves (episode.explore): the default is today's data, byte for byte
+
+MOVES = ("move", "next_view", "next_pose")
+PUBLISHED = Path(__file__).resolve().parents[1] / "manifests" / "builtin-shapes-1.2.0.json"
+
+
+def _file_digests(folder: Path) -> dict[str, str]:
+    """sha256 of every file of an output folder (shards and config.yaml)."""
+    return {path.name: hashlib.sha256(path.read_bytes()).hexdigest() for path in sorted(folder.iterdir())
+            if path.is_file() and not path.name.startswith(".")}
+
+
+def test_exploration_zero_writes_the_same_bytes_and_datasets_as_no_setting(tmp_path, sources):
+    plain, zero = tmp_path / "plain", tmp_path / "zero"
+    generate(sources[:2], plain, _config("generate.workers=1"))
+    generate(sources[:2], zero, _config("generate.workers=1", "episode.explore=0", "episode.oracle_mix=0"))
+    assert _file_digests(plain) == _file_digests(zero) and len(_file_digests(plain)) == 3
+    assert "explore" not in (plain / "config.yaml").read_text()
+    for path in plain.glob("*.h5"):
+        with Shard(path) as shard:
+            assert sorted(shard.file) == sorted(DATA)  # no move datasets: today's list
+            assert "explore" not in shard.file.attrs["config"] and "policy" not in shard.file.attrs
+
+
+def test_the_default_settings_still_make_the_published_builtin_shapes():
+    """The mug's shard of builtin-shapes 1.2.0 (published before exploration existed), made again:
+    every array and attribute as published (content digests: whatever HDF5 library wrote it)."""
+    import json
+    import tempfile
+
+    manifest = json.loads(PUBLISHED.read_text())
+    mug = [source for source in builtin_sources() if source.stem == "mug"]
+    with tempfile.TemporaryDirectory() as folder:
+        generate(mug, Path(folder), _default_config("generate.workers=1"), show_progress=False)
+        (path,) = Path(folder).glob("*.h5")
+        published = {shard["path"]: shard["content"] for shard in manifest["shards"]}[path.name]
+        with Shard(path) as shard:
+            assert shard.content_digests() == published
+
+
+def _default_config(*overrides: str) -> SimConfig:
+    return load_config(SimConfig, None, list(overrides))
+
+
+def test_exploring_shards_record_the_moves_and_match_with_two_workers(tmp_path, sources):
+    one, two = tmp_path / "one", tmp_path / "two"
+    generate(sources, one, _config("generate.workers=1", "generate.runs_per_shard=2", "episode.explore=0.4"))
+    generate(sources, two, _config("generate.workers=2", "generate.runs_per_shard=2", "episode.explore=0.4"))
+    assert _file_digests(one) == _file_digests(two)  # the same bytes
+    shards = {}
+    for path in sorted(one.glob("*.h5")):
+        with Shard(path) as shard:
+            shards[path.name] = {name: shard[name] for name in (*DATA, *MOVES)}
+            assert "explore: 0.4" in shard.file.attrs["config"]
+    moves = np.concatenate([arrays["move"] for arrays in shards.values()])
+    assert set(moves.tolist()) == {-1, 0, 1}
+    for arrays in shards.values():
+        moved = arrays["move"] >= 0
+        oracle = arrays["move"] == 0
+        assert np.array_equal(arrays["next_view"][oracle], arrays["nbv_index"][oracle])
+        assert np.array_equal(arrays["next_pose"][moved], arrays["view_poses"][arrays["next_view"][moved]])
+        follows = moved[:-1] & (arrays["run"][1:] == arrays["run"][:-1])  # the next sample is the next state
+        assert np.array_equal(arrays["last_view"][1:][follows], arrays["next_view"][:-1][follows])
+    other = tmp_path / "other"
+    generate(sources, other, _config("generate.workers=1", "generate.runs_per_shard=2", "episode.explore=0.4",
+                                     "episode.seed=1"))
+    assert _file_digests(other).keys() == _file_digests(one).keys() != _file_digests(other)
+
+
+def test_inspect_shows_the_share_of_exploratory_moves(tmp_path, sources, capsys):
+    generate(sources[:1], tmp_path, _config("generate.workers=1", "episode.explore=0.5"))
+    assert main(["inspect", str(tmp_path)]) == 0
+    line = [line for line in capsys.readouterr().out.splitlines() if line.startswith("moves: ")]
+    with Shard(next(tmp_path.glob("*.h5"))) as shard:
+        move, off = shard["move"], shard["next_view"] != shard["nbv_index"]
+    moved = move >= 0
+    assert line == [f"moves: {moved.sum()} moves by rule: oracle {100 * (move == 0).sum() / moved.sum():.1f}%, "
+                    f"explore {100 * (move == 1).sum() / moved.sum():.1f}%, policy 0.0%; "
+                    f"{100 * off[moved].sum() / moved.sum():.1f}% went elsewhere than the state's label"]
+
+
+def test_a_shard_that_explores_needs_its_moves(tmp_path, sources):
+    generate(sources[:1], tmp_path, _config("generate.workers=1", "episode.explore=0.5"))
+    (path,) = tmp_path.glob("*.h5")
+    with h5py.File(path, "a") as f:
+        del f["next_pose"]
+    with pytest.raises(ShardError, match="incomplete shard, missing next_pose"):
+        Shard(path)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--explore", "1.5"], "episode.explore=1.5: must be in [0, 1]"),
+    (["--oracle-mix", "0.5"], "episode.oracle_mix=0.5 mixes oracle moves into a policy's: pass --policy"),
+    (["--policy", "{tmp}/none.pt"], "none.pt: no such checkpoint file; pass a checkpoint written by nbvtrain fit"),
+    (["--explore", "0.2"], "holds shards made with other settings (episode.explore)"),
+])
+def test_exploration_and_policy_errors_are_one_line_and_exit_2(tmp_path, capsys, argv, message):
+    out = tmp_path / "out"
+    if "0.2" in argv:  # a folder of oracle runs
+        assert main(["generate", "--out", str(out), "--config", str(SMOKE), "--runs-per-mesh", "1",
+                     "--no-progress", "--workers", "1"]) == 0
+        capsys.readouterr()
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    assert main(["generate", "--out", str(out), "--config", str(SMOKE), "--runs-per-mesh", "1", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+
+
+def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
+    from nbvdata.manifest import publish
+
+    shards = tmp_path / "explored"
+    generate(sources[:1], shards, _config("generate.workers=1", "episode.explore=0.5"))
+    card = publish(shards, "explored", "1.0.0", tmp_path / "manifests").path.with_suffix(".md").read_text()
+    assert "- Exploration: at each move, with probability 0.5 the run moved to a uniformly random view" in card
+    assert "moves: " in card and "explore " in card and "*(absent in this version)*" not in card
+    for dataset in MOVES:
+        assert f"| `{dataset}` | (N" in card
+    from nbvdata.card import _reproduce
+
+    config = _config("episode.explore=0.5").dataset_dict()
+    content = {"meshes": [{"source": source.name} for source in builtin_sources()], "config": config,
+               "shards": [{"runs": [0, 3]}], "root": "../explored"}
+    assert _reproduce(content) == ("nbvdata generate --out explored --set views.count=60 --set sensor.width=44 "
+                                   "--set sensor.height=36 --set coverage.points=2000 --set episode.runs_per_mesh=3 "
+                                   "--set episode.max_scans=4 --set episode.explore=0.5")
