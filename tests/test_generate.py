@@ -396,7 +396,6 @@ def test_a_mesh_whose_shards_are_all_there_leaves_failures_tsv(tmp_path, sources
 # Exploration moves (episode.explore): the default is today's data, byte for byte
 
 MOVES = ("move", "next_view", "next_pose")
-PUBLISHED = Path(__file__).resolve().parents[1] / "manifests" / "builtin-shapes-1.2.0.json"
 
 
 def _file_digests(folder: Path) -> dict[str, str]:
@@ -415,26 +414,6 @@ def test_exploration_zero_writes_the_same_bytes_and_datasets_as_no_setting(tmp_p
         with Shard(path) as shard:
             assert sorted(shard.file) == sorted(DATA)  # no move datasets: today's list
             assert "explore" not in shard.file.attrs["config"] and "policy" not in shard.file.attrs
-
-
-def test_the_default_settings_still_make_the_published_builtin_shapes():
-    """The mug's shard of builtin-shapes 1.2.0 (published before exploration existed), made again:
-    every array and attribute as published (content digests: whatever HDF5 library wrote it)."""
-    import json
-    import tempfile
-
-    manifest = json.loads(PUBLISHED.read_text())
-    mug = [source for source in builtin_sources() if source.stem == "mug"]
-    with tempfile.TemporaryDirectory() as folder:
-        generate(mug, Path(folder), _default_config("generate.workers=1"), show_progress=False)
-        (path,) = Path(folder).glob("*.h5")
-        published = {shard["path"]: shard["content"] for shard in manifest["shards"]}[path.name]
-        with Shard(path) as shard:
-            assert shard.content_digests() == published
-
-
-def _default_config(*overrides: str) -> SimConfig:
-    return load_config(SimConfig, None, list(overrides))
 
 
 def test_exploring_shards_record_the_moves_and_match_with_two_workers(tmp_path, sources):
