@@ -28,7 +28,7 @@ import queue
 import sys
 import threading
 import time
-from collections import defaultdict
+from collections import OrderedDict, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -177,12 +177,9 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         import numba
         numba.set_num_threads(threads)
     try:
-        with timer("load"):
-            obj = unit.source.load(config.mesh)
         seed, mesh_id = config.episode.seed, unit.source.mesh_id
         with timer("scene"):
-            scene = Scene.build(obj, config, scene_rng(seed, mesh_id), threads)
-        cache = ViewCache(scene) if config.sensor.noise_std == 0 else None
+            obj, scene, cache = _mesh_scene(unit.source, config, threads)
         with timer("policy"):
             planner = load_policy(policy, config.views.radius, threads) if policy is not None else None
         episode = config.episode
@@ -227,6 +224,30 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         result.error = f"{type(error).__name__}: {error}"
     result.seconds = dict(timer.seconds)
     return result
+
+
+# Scenes of the meshes this process ran last: the units of one mesh (runs_per_shard > 0) come one
+# after another, so a worker casts each mesh's scene once, not once per unit.
+SCENE_CACHE_SIZE = 2
+_SCENES: OrderedDict[tuple, tuple[ObjectMesh, Scene, ViewCache | None]] = OrderedDict()
+
+
+def _mesh_scene(source: MeshSource, config: SimConfig, threads: int) -> tuple[ObjectMesh, Scene, ViewCache | None]:
+    """(mesh, scene, view cache) of ``source`` under ``config``'s data settings: built here, or
+    reused from this process's last ``SCENE_CACHE_SIZE`` meshes (everything in them is a function
+    of the mesh, the data settings and the seed, so reuse changes no byte)."""
+    key = (source, yaml.safe_dump(config.dataset_dict(), sort_keys=True), threads)
+    if key in _SCENES:
+        _SCENES.move_to_end(key)
+        return _SCENES[key]
+    obj = source.load(config.mesh)
+    scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
+    entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
+    if SCENE_CACHE_SIZE > 0:
+        _SCENES[key] = entry
+        while len(_SCENES) > SCENE_CACHE_SIZE:
+            _SCENES.popitem(last=False)
+    return entry
 
 
 def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh_id: str) -> dict[str, np.ndarray]:

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections import OrderedDict
 from pathlib import Path
 
 import h5py
@@ -100,6 +101,27 @@ def test_the_split_into_shards_does_not_change_the_samples(tmp_path, sources, re
     generate(sources, tmp_path, _config("generate.workers=1"))  # one shard per mesh
     assert len(list(tmp_path.glob("*.h5"))) == 3
     _assert_same(_per_mesh(_read(tmp_path)), _per_mesh(reference))
+
+
+def test_units_of_one_mesh_share_one_scene_and_the_same_bytes(tmp_path, sources, monkeypatch):
+    """runs_per_shard=1: the scene is cast once per mesh in a process, and the shards are the
+    bytes of a job that casts it for every unit."""
+    import nbvdata.generate as job
+
+    config = _config("generate.workers=1", "generate.runs_per_shard=1", "episode.runs_per_mesh=3")
+    build, built = job.Scene.build, []
+    monkeypatch.setattr(job.Scene, "build", lambda obj, *rest: built.append(obj.mesh_id) or build(obj, *rest))
+    monkeypatch.setattr(job, "_SCENES", OrderedDict())
+    generate(sources[:2], tmp_path / "reused", config)
+    assert sorted(built) == sorted(source.mesh_id for source in sources[:2])
+    built.clear()
+    monkeypatch.setattr(job, "SCENE_CACHE_SIZE", 0)
+    monkeypatch.setattr(job, "_SCENES", OrderedDict())
+    generate(sources[:2], tmp_path / "rebuilt", config)
+    assert len(built) == 6
+    digests = {name: [hashlib.sha256((tmp_path / folder / name).read_bytes()).hexdigest()
+                      for folder in ("reused", "rebuilt")] for name in _read(tmp_path / "reused")}
+    assert len(digests) == 6 and all(a == b for a, b in digests.values())
 
 
 def test_another_seed_gives_other_runs(tmp_path, sources, reference):
