@@ -36,11 +36,14 @@ Outputs in the folder ``out``:
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import threading
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 import yaml
@@ -143,35 +146,103 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
-             starts: int = 0, seed: int = 0, progress: bool = False) -> EvaluationReport:
+             starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1) -> EvaluationReport:
     """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
-    then writes the files)."""
+    then writes the files). ``workers`` > 1 evaluates meshes in that many processes (joblib loky,
+    one thread each); the rows are the same, in the same order, as with one."""
     from tqdm import tqdm
 
     began = time.perf_counter()
     report = EvaluationReport(min_overlap=config.oracle.min_overlap)
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
-    for source in sources:
-        bar.set_postfix_str(source.stem)
-        try:
-            obj = source.load(config.mesh)
-            scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id))
-        except (MeshError, ValueError, RuntimeError) as error:
-            name = str(source.path or source.name)
-            report.failures.append((name, str(error).removeprefix(f"{name}: ")))  # the caller prints them
-            bar.update(len(planners) * (1 + starts))
-            continue
-        firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
-        for planner in planners:
-            for number, first in enumerate(firsts):
-                rows = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
-                report.rows += [{"mesh": source.stem, "planner": planner.name, "start": number,
-                                 "start_view": first} | row for row in rows]
-                bar.update()
+    with _mesh_runner(workers, bar) as run:
+        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed) for source in sources])
+        for source, (rows, failure) in zip(sources, results):
+            report.rows += rows
+            if failure is not None:
+                name = str(source.path or source.name)
+                report.failures.append((name, failure.removeprefix(f"{name}: ")))  # the caller prints them
     bar.close()
     report.seconds = time.perf_counter() - began
     return report
+
+
+def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
+                  seed: int, tick: Callable[[int], None] = lambda runs: None,
+                  threads: int = 0) -> tuple[list[dict], str | None]:
+    """One mesh's coverage.csv rows (planner by planner, start by start), and why it could not be
+    used (None if it could). ``tick(runs)`` counts reconstructions; ``threads`` > 0 limits numba,
+    open3d and torch to that many threads (parallel workers pass 1)."""
+    if threads:
+        _limit_threads(threads)
+    try:
+        obj = source.load(config.mesh)
+        scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id), threads)
+    except (MeshError, ValueError, RuntimeError) as error:
+        tick(len(planners) * (1 + starts))
+        return [], str(error)
+    firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
+    rows = []
+    for planner in planners:
+        for number, first in enumerate(firsts):
+            run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
+            rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
+                     for row in run]
+            tick(1)
+    return rows, None
+
+
+def _limit_threads(threads: int) -> None:
+    import numba
+    import torch
+
+    numba.set_num_threads(threads)
+    torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def _mesh_runner(workers: int, bar) -> Iterator[Callable]:
+    """``run(function, argument tuples)``: the calls' results in order, in this process or in
+    ``workers`` loky processes; each call counts its reconstructions on ``bar`` (through a queue
+    from a worker process)."""
+    if workers == 1:
+        def run(function, calls):
+            for arguments in calls:
+                bar.set_postfix_str(arguments[0].stem)
+                yield function(*arguments, tick=bar.update)
+        yield run
+        return
+    import multiprocessing
+
+    import joblib
+
+    with multiprocessing.Manager() as manager:
+        ticks = manager.Queue()
+        drain = threading.Thread(target=_drain, args=(ticks, bar), daemon=True)
+        drain.start()
+        try:
+            with joblib.parallel_config(backend="loky", n_jobs=workers):
+                yield lambda function, calls: joblib.Parallel(return_as="generator")(
+                    joblib.delayed(function)(*arguments, tick=_QueueTick(ticks), threads=1) for arguments in calls)
+        finally:
+            ticks.put(None)
+            drain.join()
+
+
+class _QueueTick:
+    """A worker's ``tick``: sends the count of finished reconstructions to the main process."""
+
+    def __init__(self, ticks):
+        self.ticks = ticks
+
+    def __call__(self, runs: int) -> None:
+        self.ticks.put(runs)
+
+
+def _drain(ticks, bar) -> None:
+    while (runs := ticks.get()) is not None:
+        bar.update(runs)
 
 
 def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skipped: list[str],

@@ -75,6 +75,12 @@ class LearnedPlanner(Planner):
             flag = "--class-checkpoint" if task == "classification" else "--checkpoint"
             raise ConfigError(f"{checkpoint}: a {task} network ({self.predictor.name}); pass it with {flag}")
         self.name = expect
+        self._arguments = (checkpoint, radius, expect)
+
+    def __reduce__(self):
+        """Pickled as its arguments: a worker process loads the checkpoint itself (the network's
+        oneDNN weights cannot be pickled)."""
+        return type(self), self._arguments
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         (prediction,) = self.predictor.predict(observation.probabilities)

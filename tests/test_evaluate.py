@@ -106,6 +106,31 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
     assert "scans: 5" in (out / "config.yaml").read_text()
 
 
+def _without_timings(out: Path) -> tuple[list[dict], str]:
+    """coverage.csv's rows less the seconds column, and summary.md less its time-per-NBV table."""
+    rows = [{key: value for key, value in row.items() if key != "seconds"} for row in _rows(out / "coverage.csv")]
+    summary = (out / "summary.md").read_text()
+    before, after = summary.split("Time per NBV")
+    return rows, before + after[after.index("Overlap rule"):]
+
+
+def test_two_workers_give_the_same_outputs_as_one(meshes, checkpoints, tmp_path, capsys):
+    (meshes / "broken.obj").write_text("not a mesh\n")  # a failure among them keeps its place too
+    try:
+        outputs = {}
+        for workers in ("1", "2"):
+            out = tmp_path / workers
+            assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
+                         "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--scans", "4", "--starts", "1",
+                         "--config", str(SMOKE), "--out", str(out), "--no-progress", "--workers", workers]) == 1
+            outputs[workers] = _without_timings(out) + ((out / "failures.tsv").read_text(),)
+    finally:
+        (meshes / "broken.obj").unlink()
+    rows = outputs["1"][0]
+    assert len(rows) == 2 * 5 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
+    assert outputs["2"] == outputs["1"]
+
+
 def test_planners_without_checkpoints_are_skipped_and_errors_exit_2(meshes, checkpoints, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "regression,random", "--scans", "2",
