@@ -16,8 +16,8 @@ import argparse
 import hashlib
 import statistics
 import tempfile
+import threading
 import time
-from collections import OrderedDict
 from pathlib import Path
 
 import nbvdata.generate as job
@@ -26,7 +26,7 @@ from nbvdata.config import SimConfig, load_config
 
 def _job(config: SimConfig, sources: list, cache_size: int) -> tuple[float, float, dict[str, str]]:
     """(wall seconds, seconds in the scene phase, shard sha256s) of one job from a cold cache."""
-    job.SCENE_CACHE_SIZE, job._SCENES = cache_size, OrderedDict()
+    job.SCENE_CACHE_SIZE, job._SCENES = cache_size, threading.local()
     with tempfile.TemporaryDirectory(prefix="nbv-scene-reuse-") as out:
         started = time.perf_counter()
         report = job.generate(sources, Path(out), config, show_progress=False)

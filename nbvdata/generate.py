@@ -226,27 +226,29 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
     return result
 
 
-# Scenes of the meshes this process ran last: the units of one mesh (runs_per_shard > 0) come one
-# after another, so a worker casts each mesh's scene once, not once per unit.
+# Scenes of the meshes this thread ran last: the units of one mesh (runs_per_shard > 0) come one
+# after another, so a worker casts each mesh's scene once, not once per unit. Per thread, since a
+# scene's view cache has scratch buffers (the threading backend runs units side by side).
 SCENE_CACHE_SIZE = 2
-_SCENES: OrderedDict[tuple, tuple[ObjectMesh, Scene, ViewCache | None]] = OrderedDict()
+_SCENES = threading.local()
 
 
 def _mesh_scene(source: MeshSource, config: SimConfig, threads: int) -> tuple[ObjectMesh, Scene, ViewCache | None]:
     """(mesh, scene, view cache) of ``source`` under ``config``'s data settings: built here, or
-    reused from this process's last ``SCENE_CACHE_SIZE`` meshes (everything in them is a function
+    reused from this thread's last ``SCENE_CACHE_SIZE`` meshes (everything in them is a function
     of the mesh, the data settings and the seed, so reuse changes no byte)."""
+    scenes = _SCENES.__dict__.setdefault("scenes", OrderedDict())
     key = (source, yaml.safe_dump(config.dataset_dict(), sort_keys=True), threads)
-    if key in _SCENES:
-        _SCENES.move_to_end(key)
-        return _SCENES[key]
+    if key in scenes:
+        scenes.move_to_end(key)
+        return scenes[key]
     obj = source.load(config.mesh)
     scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
     entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
     if SCENE_CACHE_SIZE > 0:
-        _SCENES[key] = entry
-        while len(_SCENES) > SCENE_CACHE_SIZE:
-            _SCENES.popitem(last=False)
+        scenes[key] = entry
+        while len(scenes) > SCENE_CACHE_SIZE:
+            scenes.popitem(last=False)
     return entry
 
 

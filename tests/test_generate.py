@@ -8,8 +8,8 @@ import selectors
 import signal
 import subprocess
 import sys
+import threading
 import time
-from collections import OrderedDict
 from pathlib import Path
 
 import h5py
@@ -111,12 +111,12 @@ def test_units_of_one_mesh_share_one_scene_and_the_same_bytes(tmp_path, sources,
     config = _config("generate.workers=1", "generate.runs_per_shard=1", "episode.runs_per_mesh=3")
     build, built = job.Scene.build, []
     monkeypatch.setattr(job.Scene, "build", lambda obj, *rest: built.append(obj.mesh_id) or build(obj, *rest))
-    monkeypatch.setattr(job, "_SCENES", OrderedDict())
+    monkeypatch.setattr(job, "_SCENES", threading.local())
     generate(sources[:2], tmp_path / "reused", config)
     assert sorted(built) == sorted(source.mesh_id for source in sources[:2])
     built.clear()
     monkeypatch.setattr(job, "SCENE_CACHE_SIZE", 0)
-    monkeypatch.setattr(job, "_SCENES", OrderedDict())
+    monkeypatch.setattr(job, "_SCENES", threading.local())
     generate(sources[:2], tmp_path / "rebuilt", config)
     assert len(built) == 6
     digests = {name: [hashlib.sha256((tmp_path / folder / name).read_bytes()).hexdigest()
