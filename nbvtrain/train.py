@@ -17,6 +17,7 @@ an epoch's checkpoint continues exactly as the uninterrupted run would have.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -206,18 +207,20 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
                        for i in range(0, len(order), config.batch_size)]
             bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
             total = 0.0
-            for codes, targets in _prefetch(lambda b: _batch(data, *b), batches):
-                grids = to_grids(codes, palette)
-                targets = torch.from_numpy(targets).to(device)
-                output = model(grids)
-                loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                optimizer.step()
-                total += loss.item() * len(codes)
-                if bar is not None:
-                    bar.update(len(codes))
-                    bar.set_postfix(loss=f"{loss.item():.4f}")
+            # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
+            with contextlib.closing(_prefetch(lambda b: _batch(data, *b), batches)) as prepared:
+                for codes, targets in prepared:
+                    grids = to_grids(codes, palette)
+                    targets = torch.from_numpy(targets).to(device)
+                    output = model(grids)
+                    loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                    optimizer.step()
+                    total += loss.item() * len(codes)
+                    if bar is not None:
+                        bar.update(len(codes))
+                        bar.set_postfix(loss=f"{loss.item():.4f}")
             if bar is not None:
                 bar.close()
             train_seconds = time.perf_counter() - started
