@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
+from nbvdata.claims import write_atomic  # noqa: E402
 from nbvdata.config import SimConfig  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import GENERATED, Shard  # noqa: E402
@@ -43,16 +44,6 @@ def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> P
     card = manifest_path.with_suffix(".md")
     write_atomic(card, card_text(content, summary, present, manifest_path))
     return card
-
-
-def write_atomic(path: Path, data: str | bytes) -> None:
-    """Write ``path`` whole or not at all: to a temporary name, then rename."""
-    partial = path.with_name(path.name + ".partial")
-    if isinstance(data, str):
-        partial.write_text(data, encoding="utf-8")
-    else:
-        partial.write_bytes(data)
-    os.replace(partial, path)
 
 
 def plot_label_spread(views: np.ndarray, counts: Counter, out: Path, title: str) -> None:

@@ -73,10 +73,25 @@ def claim(out_dir: Path, shard_name: str) -> Iterator[bool]:
         lock.release()
 
 
+def _process_tag() -> str:
+    """HOST-PID: a name part no other process, on this machine or another, uses."""
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname()) + f"-{os.getpid()}"
+
+
 def partial_path(shard: Path) -> Path:
     """Where this process writes ``shard`` before renaming it: a name no other process uses."""
-    tag = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname()) + f"-{os.getpid()}"
-    return shard.with_name(f"{shard.name}.{tag}{PARTIAL_SUFFIX}")
+    return shard.with_name(f"{shard.name}.{_process_tag()}{PARTIAL_SUFFIX}")
+
+
+def write_atomic(path: Path, data: str | bytes) -> None:
+    """Replace ``path`` by a file holding ``data``, whole or not at all: written under a hidden
+    name of this process's own, then renamed, so readers and other writers never see a part."""
+    temporary = path.with_name(f".{path.name}.{_process_tag()}.tmp")
+    if isinstance(data, str):
+        temporary.write_text(data, encoding="utf-8")
+    else:
+        temporary.write_bytes(data)
+    os.replace(temporary, path)
 
 
 def shard_of_partial(name: str) -> str:

@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from nbvdata import __version__
-from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials
+from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials, write_atomic
 from nbvdata.config import ConfigError, MeshConfig, SimConfig
 from nbvdata.episode import Mover, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
@@ -330,10 +330,10 @@ def prepare_out_dir(out_dir: Path, config: SimConfig, policy: PolicySource | Non
                                      if followed else ", or leave out --policy to resume"))
         else:  # policy.yaml first: config.yaml marks the folder as begun
             if policy is not None:
-                _write_atomically(policy_file, yaml.safe_dump(policy.record(), sort_keys=False))
+                write_atomic(policy_file, yaml.safe_dump(policy.record(), sort_keys=False))
             else:
                 policy_file.unlink(missing_ok=True)  # left by a job killed before it began
-            _write_atomically(settings, yaml.safe_dump(wanted, sort_keys=False))
+            write_atomic(settings, yaml.safe_dump(wanted, sort_keys=False))
     sweep_partials(out_dir)
 
 
@@ -342,13 +342,6 @@ def _policy_words(record: dict | None) -> str:
     if record is None:
         return "the oracle (no --policy)"
     return f"the policy {record.get('network') or 'checkpoint'} (sha256 {record['sha256'][:12]}...)"
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Replace ``path`` by a file holding ``text``: readers see the old or the new one, whole."""
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
 
 
 def _shard_problem(path: Path) -> str | None:
@@ -526,6 +519,6 @@ def _write_failures(out_dir: Path, failures: list[tuple[str, str]], units: list[
         clean = [(name, " ".join(reason.split())) for name, reason in failures]  # one line each
         merged = list(dict.fromkeys(kept + clean))
         if merged:
-            _write_atomically(path, "mesh\treason\n" + "".join(f"{name}\t{reason}\n" for name, reason in merged))
+            write_atomic(path, "mesh\treason\n" + "".join(f"{name}\t{reason}\n" for name, reason in merged))
         elif path.exists():
             path.unlink()

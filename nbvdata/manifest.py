@@ -47,6 +47,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 import numpy as np
 
 from nbvdata import __version__
+from nbvdata.claims import write_atomic
 from nbvdata.mesh import sha256_file
 from nbvdata.shards import GENERATED, SCHEMA_VERSION, Shard, ShardError
 from nbvdata.summary import dataset_name
@@ -465,7 +466,7 @@ def publish(shards_dir: str | Path, name: str, version: str, manifests_dir: str 
         raise ManifestError(f"{name} {version} is already published ({path}) with other {what}; published "
                             f"versions are immutable: publish this as {next_version(manifests_dir, name, level)} "
                             f"({RULES[level]})")
-    from nbvdata.card import write_atomic, write_card  # card imports matplotlib: only when publishing
+    from nbvdata.card import write_card  # card imports matplotlib: only when publishing
 
     manifests_dir.mkdir(parents=True, exist_ok=True)
     write_card(content, path, contents.paths)
