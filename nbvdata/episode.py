@@ -132,7 +132,7 @@ class Mover:
                 run: int) -> "Mover":
         """Run ``run``'s mover, its streams spawned from the global seed, the mesh id and the run
         (spawn key 4), so neither the range noise nor the number of workers changes them."""
-        moves, policy_stream = np.random.SeedSequence(_mesh_key(seed, mesh_id), spawn_key=(4, run)).spawn(2)
+        moves, policy_stream = mesh_stream(seed, mesh_id, 4, run).spawn(2)
         if policy is not None:
             policy.start(policy_stream)
         return cls(explore, policy, oracle_mix, np.random.default_rng(moves))
@@ -154,24 +154,26 @@ class Mover:
         return ORACLE
 
 
-def _mesh_key(seed: int, mesh_id: str) -> list[int]:
-    return [seed, int(mesh_id[:16], 16)]
+def mesh_stream(seed: int, mesh_id: str, *spawn_key: int) -> np.random.SeedSequence:
+    """Stream ``spawn_key`` of a mesh (the keys are listed in the module docstring): entropy from
+    the global seed and the mesh id's first 64 bits, never from a worker or a unit."""
+    return np.random.SeedSequence([seed, int(mesh_id[:16], 16)], spawn_key=spawn_key)
 
 
 def scene_rng(seed: int, mesh_id: str) -> np.random.Generator:
     """The generator that draws a mesh's coverage reference points."""
-    return np.random.default_rng(np.random.SeedSequence(_mesh_key(seed, mesh_id), spawn_key=(0,)))
+    return np.random.default_rng(mesh_stream(seed, mesh_id, 0))
 
 
 def start_view(seed: int, mesh_id: str, view_count: int, run: int) -> int:
     """Start view of run ``run``: a seeded permutation of the views, so the first V runs differ."""
-    order = np.random.default_rng(np.random.SeedSequence(_mesh_key(seed, mesh_id), spawn_key=(1,)))
+    order = np.random.default_rng(mesh_stream(seed, mesh_id, 1))
     return int(order.permutation(view_count)[run % view_count])
 
 
 def run_seed(seed: int, mesh_id: str, run: int) -> int:
     """Seed of run ``run``'s own generator (range noise), from the global seed and the mesh id."""
-    sequence = np.random.SeedSequence(_mesh_key(seed, mesh_id), spawn_key=(2, run))
+    sequence = mesh_stream(seed, mesh_id, 2, run)
     return int(sequence.generate_state(1)[0])
 
 

@@ -49,7 +49,7 @@ import numpy as np
 import yaml
 
 from nbvdata.config import SimConfig, to_dict
-from nbvdata.episode import Reconstruction, run_seed, scene_rng, start_view
+from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.generate import MeshSource
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import popcount
@@ -90,10 +90,9 @@ def front_view(scene: Scene) -> int:
 
 
 def evaluation_rng(seed: int, mesh_id: str) -> np.random.Generator:
-    """The evaluation's own stream for a mesh: nbvdata.episode's per-mesh entropy (the seed and
-    the mesh id's first 64 bits) with spawn key ``EVALUATION_STREAM``, which no generation stream uses."""
-    key = [seed, int(mesh_id[:16], 16)]
-    return np.random.default_rng(np.random.SeedSequence(key, spawn_key=(EVALUATION_STREAM,)))
+    """The evaluation's own stream for a mesh: ``nbvdata.episode.mesh_stream`` with spawn key
+    ``EVALUATION_STREAM``, which no generation stream uses."""
+    return np.random.default_rng(mesh_stream(seed, mesh_id, EVALUATION_STREAM))
 
 
 def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_runs: int) -> list[int]:
