@@ -1,8 +1,10 @@
 """Checkpoints of ``nbvtrain fit``: plain data only, written atomically, read without running code.
 
 A checkpoint is a dict of plain data: ``model`` (registry name), ``task``, ``epoch``,
-``config`` (the TrainConfig as a dict), ``view_radius``, ``state_dict`` and ``optimizer``
-(tensors, numbers, lists), ``history`` (one dict of numbers per epoch) and ``target``.
+``config`` (the TrainConfig as a dict), ``view_radius``, ``scene`` (``nbvtrain.scene``: the
+grid and views of its shards, None when unknown), ``state_dict`` and ``optimizer`` (tensors,
+numbers, lists), ``history`` (one dict of numbers per epoch) and ``target``; a score network's
+also ``view_units`` ((V, 3) float64 tensor: the candidate views it scores, unit directions).
 
 Every checkpoint is read here, with ``torch.load(weights_only=True)``: a file that carries
 pickled Python objects is refused, so no code from it runs. Anything that is not a checkpoint
@@ -20,7 +22,7 @@ import numpy as np
 import torch
 
 from nbvdata.shards import ShardError
-from nbvtrain.models import MODELS, NBVNet, build_model
+from nbvtrain.models import MODELS, NBVNet, ScoreNet, build_model
 
 INFERENCE_KEYS = ("model", "epoch", "config", "state_dict")
 RESUME_KEYS = INFERENCE_KEYS + ("optimizer", "history")
@@ -85,11 +87,19 @@ def load_checkpoint(path: str | Path, fix: str = USE_FIT, keys: tuple[str, ...] 
     return state
 
 
-def model_from(state: dict, path: Path, fix: str = USE_FIT) -> NBVNet:
+def model_from(state: dict, path: Path, fix: str = USE_FIT) -> NBVNet | ScoreNet:
     """The network a loaded checkpoint names, with its weights; CheckpointError when they do not fit."""
     config = state["config"]
+    views = None
+    if MODELS[state["model"]].task == "scores":
+        units = state.get("view_units")
+        if not isinstance(units, torch.Tensor) or units.ndim != 2 or units.shape[1] != 3:
+            raise CheckpointError(f"{path}: not an nbvtrain checkpoint (a score network without its (V, 3) "
+                                  f"view_units); {fix}")
+        views = units.double().numpy()
     try:
-        model = build_model(state["model"], config.get("dropout_from", "conv3"), config.get("dropout", 0.5))
+        model = build_model(state["model"], config.get("dropout_from", "conv3"), config.get("dropout", 0.5),
+                            views=views)
     except (ValueError, TypeError) as error:
         raise CheckpointError(f"{path}: not an nbvtrain checkpoint (bad settings: {error}); {fix}") from None
     restore(model, state["state_dict"], path, fix)

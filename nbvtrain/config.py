@@ -17,7 +17,7 @@ from nbvtrain.models import MODELS, dropout_start_index, layer_names
 @dataclass(frozen=True)
 class TrainConfig:
     model: str = "nbvnet-4-5"
-    """Network from the registry: nbvnet-3-3, nbvnet-3-5, nbvnet-4-3, nbvnet-4-5, nbvnet-class."""
+    """Network from the registry: nbvnet-3-3, nbvnet-3-5, nbvnet-4-3, nbvnet-4-5, nbvnet-class, nbvscore-3."""
     dropout_from: str = "conv3"
     """First layer followed by dropout, to the end: conv1..conv4, fc (= fc1), fc2.., or none."""
     dropout: float = 0.5
@@ -28,6 +28,13 @@ class TrainConfig:
     """Samples per step (paper: 250)."""
     lr: float = 1e-4
     """Adam learning rate (paper: 1e-4)."""
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+    """constant (paper), or cosine: lr * (1 + cos(pi * (epoch - 1) / epochs)) / 2 in each epoch (a run
+    resumed with more epochs follows the longer schedule from there)."""
+    score_loss: Literal["listwise", "regression", "argmax"] = "listwise"
+    """Score networks only: the loss over the full score vectors (``nbvtrain.scores``)."""
+    score_temperature: float = 0.1
+    """Score networks, listwise loss: the target is softmax((gain / best gain) / temperature)."""
     split: Literal["random", "mesh"] = "random"
     """random: a per-sample split (the paper's 80/20); mesh: whole objects held out."""
     val_fraction: float = 0.2
@@ -53,6 +60,8 @@ class TrainConfig:
         _check(self.epochs >= 1, f"epochs={self.epochs}: must be >= 1")
         _check(self.batch_size >= 1, f"batch_size={self.batch_size}: must be >= 1")
         _check(self.lr > 0, f"lr={self.lr}: must be > 0")
+        _check(self.score_temperature > 0, f"score_temperature={self.score_temperature}: must be > 0")
+
         _check(0 < self.val_fraction < 1, f"val_fraction={self.val_fraction}: must lie in (0, 1)")
         _check(self.threads >= 0, f"threads={self.threads}: must be >= 0")
         _check(self.memory_limit_gb >= 0, f"memory_limit_gb={self.memory_limit_gb}: must be >= 0")

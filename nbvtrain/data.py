@@ -16,6 +16,7 @@ import torch
 from nbvdata.manifest import Published, mesh_split, random_split
 from nbvdata.shards import Shard, ShardError
 from nbvdata.text import plural
+from nbvtrain.scene import scene_record_of
 
 
 class InMemoryGrids:
@@ -70,6 +71,8 @@ class ShardSet:
     valid        : (N, V) bool, each view's overlap >= its shard's ``oracle.min_overlap`` (None with gains)
     view_units   : (V, 3) float64 unit candidate positions (None with gains)
     view_radius  : metres from the object centre to the views
+    scene        : the grid and view settings the shards were made with (``nbvtrain.scene.scene_record``),
+                   or None when a shard records none (imported data) or they differ
     """
 
     paths: list[Path]
@@ -82,6 +85,7 @@ class ShardSet:
     view_units: np.ndarray | None
     view_radius: float
     grid_size: int
+    scene: dict | None = None
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -105,6 +109,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
                 "gains": shard["gains"] if shard.has("gains") else None,
                 "valid": _valid_views(shard),
                 "views": shard["view_positions"],
+                "scene": scene_record_of(shard.info.config),
             })
     sizes = {info["size"] for info in infos if info["samples"]}
     if len(sizes) > 1:
@@ -143,7 +148,8 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
         gains=np.concatenate([info["gains"] for info in infos]).astype(np.float32) if has_gains else None,
         valid=np.concatenate([info["valid"] for info in infos]) if has_gains else None,
         view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
-        view_radius=radius, grid_size=size)
+        view_radius=radius, grid_size=size,
+        scene=infos[0]["scene"] if all(info["scene"] == infos[0]["scene"] for info in infos) else None)
 
 
 def _valid_views(shard: Shard) -> np.ndarray | None:
@@ -152,6 +158,50 @@ def _valid_views(shard: Shard) -> np.ndarray | None:
     if not shard.has("overlaps") or min_overlap is None:
         return None
     return shard["overlaps"].astype(np.float64) >= float(min_overlap)
+
+
+def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
+    """(N, V) bool: the candidate views each state has scanned.
+
+    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
+    view only); last_view : (N,) int the view scanned last. A run records its states at steps
+    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
+    by a state are the last views of its run's states up to its step. ValueError when a run's
+    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
+    """
+    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
+    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
+        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
+    taken = np.zeros((len(run), views), dtype=bool)
+    order = np.lexsort((step, run))
+    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
+    for rows in np.split(order, starts[1:]) if len(order) else []:
+        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
+            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
+                             "the views before a missing state are unknown")
+        scanned = np.zeros((len(rows), views), dtype=bool)
+        scanned[np.arange(len(rows)), last_view[rows]] = True
+        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
+    return taken
+
+
+def load_view_states(paths: list[Path]) -> np.ndarray:
+    """(N, V) bool view states of every sample of ``paths`` in order (``view_state`` per shard);
+    ShardError naming the shard when one has no ``last_view`` (imported data) or a gap in a run."""
+    parts = []
+    for path in paths:
+        with Shard(path) as shard:
+            if not shard.has("last_view"):
+                raise ShardError(f"{path}: no last_view (imported data), so no view state: use shards written by "
+                                 "nbvdata generate")
+            try:
+                parts.append(view_state(shard["run"], shard["step"], shard["last_view"],
+                                        len(shard["view_positions"])))
+            except ValueError as error:
+                raise ShardError(f"{path}: {error}") from None
+    if len({part.shape[1] for part in parts}) > 1:
+        raise ShardError("the shards have different numbers of candidate views: load one kind at a time")
+    return np.concatenate(parts)
 
 
 def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:

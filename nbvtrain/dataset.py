@@ -28,32 +28,7 @@ import torch
 
 from nbvdata.manifest import Published, open_verified
 from nbvdata.shards import Shard, ShardError, shard_files
-from nbvtrain.data import LazyGrids, load_shards
-
-
-def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
-    """(N, V) bool: the candidate views each state has scanned.
-
-    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
-    view only); last_view : (N,) int the view scanned last. A run records its states at steps
-    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
-    by a state are the last views of its run's states up to its step. ValueError when a run's
-    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
-    """
-    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
-    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
-        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
-    taken = np.zeros((len(run), views), dtype=bool)
-    order = np.lexsort((step, run))
-    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
-    for rows in np.split(order, starts[1:]) if len(order) else []:
-        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
-            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
-                             "the views before a missing state are unknown")
-        scanned = np.zeros((len(rows), views), dtype=bool)
-        scanned[np.arange(len(rows)), last_view[rows]] = True
-        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
-    return taken
+from nbvtrain.data import LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
 
 
 class NBVDataset(torch.utils.data.Dataset):
@@ -93,7 +68,7 @@ class NBVDataset(torch.utils.data.Dataset):
                                  "(imported data has none): use scores=False")
             self.gains, self.overlaps = data.gains, self._column("overlaps", np.float32, "scores")
         if view_state:
-            self.taken = self._view_state()
+            self.taken = load_view_states(self.paths)
         self._grids = data.grids
         self._lazy = None
         if isinstance(data.grids, LazyGrids):  # h5py handles do not cross processes: each opens its own
@@ -144,18 +119,3 @@ class NBVDataset(torch.utils.data.Dataset):
                     raise ShardError(f"{path}: no {name} (imported data): use {wanted}=False")
                 columns.append(shard[name].astype(dtype))
         return np.concatenate(columns)
-
-    def _view_state(self) -> np.ndarray:
-        parts = []
-        for path in self.paths:
-            with Shard(path) as shard:
-                if not shard.has("last_view"):
-                    raise ShardError(f"{path}: no last_view (imported data), so no view state: use view_state=False")
-                try:
-                    parts.append(view_state(shard["run"], shard["step"], shard["last_view"],
-                                            len(shard["view_positions"])))
-                except ValueError as error:
-                    raise ShardError(f"{path}: {error}") from None
-        if len({part.shape[1] for part in parts}) > 1:
-            raise ShardError("view_state=True: the shards have different numbers of candidate views: load one kind")
-        return np.concatenate(parts)

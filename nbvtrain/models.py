@@ -1,7 +1,10 @@
-"""The NBV-net family (regression, Vasquez-Gomez et al.) and the 14-view NBV-Net classifier.
+"""The NBV-net family (regression, Vasquez-Gomez et al.), the 14-view NBV-Net classifier, and
+the candidate-score family ``nbvscore-*``.
 
-Every model maps a batch of occupancy grids (B, 1, 32, 32, 32), float32 probabilities, to
+The NBV-nets map a batch of occupancy grids (B, 1, 32, 32, 32), float32 probabilities, to
 (B, 3) unit-ish NBV positions (regression, tanh output) or (B, 14) logits (classification).
+A score network maps grids and the view state (B, V) bool (which of the V candidate views
+were scanned) to (B, V) scores, one per candidate view (task ``scores``; ``ScoreNet``).
 
 Convolutions are kernel 3, **stride 1, padding 1**, each followed by ReLU; a 2x max-pool follows
 each of the first three (32 -> 16 -> 8 -> 4). The paper writes stride 2, but that cannot run on
@@ -29,7 +32,8 @@ GRID_SIZE = 32
 
 @dataclass(frozen=True)
 class Architecture:
-    """convs: filters per convolution; fcs: hidden fully connected widths; outputs: 3 or 14."""
+    """convs: filters per convolution; fcs: hidden fully connected widths; outputs: 3, 14, or
+    0 = one per candidate view (a score network, whose convolutions have stride 2, no pooling)."""
 
     convs: tuple[int, ...]
     fcs: tuple[int, ...]
@@ -38,7 +42,7 @@ class Architecture:
 
     @property
     def task(self) -> str:
-        return "regression" if self.outputs == 3 else "classification"
+        return {3: "regression", 0: "scores"}.get(self.outputs, "classification")
 
 
 MODELS: dict[str, Architecture] = {
@@ -53,6 +57,18 @@ MODELS: dict[str, Architecture] = {
     # code: softmax is applied once (in the loss, or by the caller), PyTorch's default init runs.
     "nbvnet-class": Architecture((10, 12, 8), (1500, 500, 100, 50), 14,
                                  "C(10) P C(12) P C(8) P, FC(1500) FC(500) FC(100) FC(50) FC(14) logits"),
+    # Candidate scores (after PC-NBV's per-view scores and SCVP's view-state input); both take 2
+    # input channels (probability, unknown) through stride-2 convolutions instead of
+    # full-resolution ones and pooling (8x fewer operations in the first layer).
+    # nbvscore-3: one shared head scores each view from what lies on its side of the grid
+    # (ViewScoreNet); C(32) keeps the 8^3 cells.
+    "nbvscore-3": Architecture((16, 32, 32), (64, 64), 0,
+                               "C(16)/2 C(32)/2 C(32), per view: [side pooling, FC(64) of global pooling, "
+                               "direction, view state] FC(64) FC(64) FC(1)"),
+    # nbvscore-fc3: a fully connected head with one output per view (FC(V)), the view state
+    # joined as V inputs (the ablation's first design: it learns each view apart).
+    "nbvscore-fc3": Architecture((16, 32, 64), (512, 512), 0,
+                                 "C(16)/2 C(32)/2 C(64)/2, FC(512), [., view state] FC(512) FC(V) scores"),
 }
 POOLED = 3  # the first three convolutions are followed by a 2x max-pool
 
@@ -115,8 +131,148 @@ def dropout_start_index(dropout_from: str, names: list[str]) -> int:
     return names.index(key)
 
 
-def build_model(name: str, dropout_from: str = "conv3", dropout: float = 0.5) -> NBVNet:
-    """The registry's one factory."""
+def _score_convolutions(arch: Architecture, strides: tuple[int, ...], start: int, dropout: float) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    channels = 2
+    for i, (filters, stride) in enumerate(zip(arch.convs, strides)):
+        layers += [nn.Conv3d(channels, filters, kernel_size=3, stride=stride, padding=1), nn.ReLU(inplace=True)]
+        if i >= start:
+            layers.append(nn.Dropout(dropout))
+        channels = filters
+    return nn.Sequential(*layers)
+
+
+def _dropout(index: int, start: int, dropout: float) -> list[nn.Module]:
+    return [nn.Dropout(dropout)] if index >= start else []
+
+
+class ScoreNet(nn.Module):
+    """(B, 1, 32, 32, 32) grids and (B, V) bool view states -> (B, V) candidate-view scores
+    (``nbvscore-fc3``: a fully connected head with one output per candidate view).
+
+    ``encode`` turns probabilities into the two input channels (p, p == 0.5); ``features`` are
+    the convolutions; ``head(features, taken)`` gives the scores. A higher score means a better
+    next view; scanned views are not masked here (the planner and the loss do that).
+    """
+
+    turns = False  # its views are outputs, not inputs: the quarter-turn augmentation cannot apply
+
+    def __init__(self, name: str, units: np.ndarray, dropout_from: str = "fc1", dropout: float = 0.5):
+        super().__init__()
+        arch = architecture(name)
+        start = dropout_start_index(dropout_from, layer_names(name))
+        self.name, self.task, self.views = name, arch.task, len(units)
+        self.features = _score_convolutions(arch, (2,) * len(arch.convs), start, dropout)
+        side = GRID_SIZE // 2 ** len(arch.convs)
+        first, joint = arch.fcs
+        self.grid_head = nn.Sequential(nn.Flatten(), nn.Linear(arch.convs[-1] * side ** 3, first),
+                                       nn.ReLU(inplace=True), *_dropout(len(arch.convs), start, dropout))
+        self.joint_head = nn.Sequential(nn.Linear(first + self.views, joint), nn.ReLU(inplace=True),
+                                        *_dropout(len(arch.convs) + 1, start, dropout), nn.Linear(joint, self.views))
+
+    @staticmethod
+    def encode(grids: torch.Tensor) -> torch.Tensor:
+        """(B, 1, n, n, n) probabilities -> (B, 2, n, n, n): the probability and an unknown mask."""
+        return torch.cat([grids, (grids == 0.5).to(grids.dtype)], dim=1)
+
+    def head(self, features: torch.Tensor, taken: torch.Tensor, turns: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, C, s, s, s) features and (B, V) view states -> (B, V) scores."""
+        return self.joint_head(torch.cat([self.grid_head(features), taken.to(features.dtype)], dim=1))
+
+    def forward(self, grids: torch.Tensor, taken: torch.Tensor, turns: torch.Tensor | None = None) -> torch.Tensor:
+        return self.head(self.features(self.encode(grids)), taken, turns)
+
+
+class ViewScoreNet(ScoreNet):
+    """``nbvscore-3``: every candidate view is scored by one shared head from
+
+    - its side of the grid: the 8^3 feature cells averaged with weights max(0, cos)^2 of the
+      angle between the cell's direction from the centre and the view's direction,
+    - the whole grid: FC of the mean and max of the cells,
+    - its direction (unit vector, object frame),
+    - the view state near it: whether it was scanned, and the scanned views summed with weights
+      exp((cos - 1) / 0.02) and exp((cos - 1) / 0.2) of their angle to it (close, and nearby).
+
+    Views are inputs (their directions), so a grid turned by a quarter turn about z with its
+    view directions turned alike is an exact new sample (``turns``: (B,) 0..3 per sample, as
+    ``nbvtrain.data.rotate_quarter_turns`` turns the grids).
+    """
+
+    turns = True
+    CLOSE, NEARBY = 0.02, 0.2
+
+    def __init__(self, name: str, units: np.ndarray, dropout_from: str = "fc1", dropout: float = 0.5):
+        nn.Module.__init__(self)
+        arch = architecture(name)
+        start = dropout_start_index(dropout_from, layer_names(name))
+        self.name, self.task, self.views = name, arch.task, len(units)
+        strides = (2, 2) + (1,) * (len(arch.convs) - 2)
+        self.features = _score_convolutions(arch, strides, start, dropout)
+        side, channels = GRID_SIZE // 4, arch.convs[-1]
+        centres = (np.arange(side) - (side - 1) / 2) / (side / 2)
+        cells = np.stack(np.meshgrid(centres, centres, centres, indexing="ij"), axis=-1).reshape(-1, 3)
+        units = np.asarray(units, dtype=np.float64)
+        cosine = np.clip(units @ units.T, -1.0, 1.0)
+        cells /= np.linalg.norm(cells, axis=1, keepdims=True)
+        self.register_buffer("units", torch.from_numpy(units).float(), persistent=False)
+        pooling = []  # (4, V, cells): each quarter turn's side weights, rows summing to 1
+        for turn in range(4):
+            weights = np.maximum(quarter_turns(units, turn) @ cells.T, 0.0) ** 2
+            pooling.append(weights / weights.sum(axis=1, keepdims=True))
+        self.register_buffer("pooling", torch.from_numpy(np.stack(pooling)).float(), persistent=False)
+        self.register_buffer("closeness", torch.from_numpy(np.stack([np.exp((cosine - 1) / self.CLOSE),
+                                                                     np.exp((cosine - 1) / self.NEARBY)])).float(),
+                             persistent=False)
+        width, hidden = arch.fcs
+        conv_count = len(arch.convs)
+        self.global_head = nn.Sequential(nn.Linear(2 * channels, width), nn.ReLU(inplace=True),
+                                         *_dropout(conv_count, start, dropout))
+        self.view_head = nn.Sequential(nn.Linear(channels + width + 3 + 3, hidden), nn.ReLU(inplace=True),
+                                       *_dropout(conv_count + 1, start, dropout), nn.Linear(hidden, hidden),
+                                       nn.ReLU(inplace=True), nn.Linear(hidden, 1))
+
+    def head(self, features: torch.Tensor, taken: torch.Tensor, turns: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, C, 8, 8, 8) features, (B, V) view states, (B,) quarter turns -> (B, V) scores."""
+        batch = len(features)
+        cells = features.flatten(2).transpose(1, 2)  # (B, 512, C)
+        whole = self.global_head(torch.cat([cells.mean(dim=1), cells.amax(dim=1)], dim=1))  # (B, W)
+        if turns is None:
+            side, units = self.pooling[0] @ cells, self.units.expand(batch, -1, -1)  # (B, V, C), (B, V, 3)
+        else:
+            side = cells.new_empty(batch, self.views, cells.shape[2])
+            for turn in range(4):  # grouped by turn: no (B, V, 512) gather of the weights
+                mine = turns == turn
+                if mine.any():
+                    side[mine] = self.pooling[turn] @ cells[mine]
+            angle = turns.to(cells.dtype)[:, None] * (np.pi / 2)
+            c, s = torch.round(torch.cos(angle)), torch.round(torch.sin(angle))
+            x, y = self.units[:, 0], self.units[:, 1]
+            units = torch.stack([c * x - s * y, s * x + c * y, self.units[:, 2].expand(batch, -1)], dim=-1)
+        scanned = taken.to(cells.dtype)
+        near = torch.stack([scanned, scanned @ self.closeness[0].T, scanned @ self.closeness[1].T], dim=-1)
+        views = torch.cat([side, whole[:, None].expand(-1, self.views, -1), units, near], dim=-1)
+        return self.view_head(views).squeeze(-1)
+
+
+def quarter_turns(vectors: np.ndarray, turns: int) -> np.ndarray:
+    """(N, 3) vectors turned by ``turns`` quarter turns about z, (x, y) -> (-y, x) each: the turn
+    ``nbvtrain.data.rotate_quarter_turns`` applies to grids and targets."""
+    c, s = round(np.cos(turns * np.pi / 2)), round(np.sin(turns * np.pi / 2))
+    x, y = vectors[:, 0], vectors[:, 1]
+    return np.stack([c * x - s * y, s * x + c * y, vectors[:, 2]], axis=1)
+
+
+SCORE_NETS = {"nbvscore-3": ViewScoreNet, "nbvscore-fc3": ScoreNet}
+
+
+def build_model(name: str, dropout_from: str = "conv3", dropout: float = 0.5,
+                views: np.ndarray | None = None) -> NBVNet | ScoreNet:
+    """The registry's one factory; a score network (``nbvscore-*``) also needs ``views``, the
+    (V, 3) unit directions of the candidate views it scores."""
+    if architecture(name).task == "scores":
+        if views is None or np.ndim(views) != 2 or np.shape(views)[1] != 3 or not len(views):
+            raise ValueError(f"{name} scores candidate views: give views=(V, 3) unit directions (the shards')")
+        return SCORE_NETS[name](name, views, dropout_from, dropout)
     return NBVNet(name, dropout_from, dropout)
 
 

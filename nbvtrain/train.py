@@ -40,9 +40,12 @@ from nbvdata.manifest import Published, open_verified
 from nbvdata.text import plural
 from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
-from nbvtrain.data import ShardSet, load_shards, published_split, rotate_quarter_turns, split_indices, to_grids
+from nbvdata.shards import ShardError
+from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
+                           split_indices, to_grids)
 from nbvtrain.metrics import evaluate, format_ratio
-from nbvtrain.models import NBVNet, build_model, class_positions, parameter_count
+from nbvtrain.models import NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count
+from nbvtrain.scores import pick, score_loss
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
            "val_invalid_share", "seconds", "train_samples_per_s")
@@ -97,20 +100,24 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     if config.threads:
         torch.set_num_threads(config.threads)
     device = resolve_device(config.device)
-    torch.manual_seed(config.seed)
-    model = build_model(config.model, config.dropout_from, config.dropout).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    history: list[dict] = []
-    if checkpoint is not None:
-        restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
-        restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
-        history = checkpoint["history"]
     shards, published = _sources(list(shards), manifest, root, out, resume)
     if published is not None:
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     data = load_shards(shards, config.memory_limit_gb)
     try:
+        taken = _view_states(data, config.model)
+        torch.manual_seed(config.seed)
+        model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units).to(device)
+        if config.augment and model.task == "scores" and not model.turns:
+            raise ConfigError(f"augment=true with {config.model}: its views are outputs, and quarter turns do not map "
+                              "the candidate views onto each other; use nbvscore-3 (views as inputs) or augment=false")
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        history: list[dict] = []
+        if checkpoint is not None:
+            restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
+            restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
+            history = checkpoint["history"]
         if published is None:
             train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
         else:
@@ -125,10 +132,22 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
             f"{plural(len(data.paths), 'shard')}")
-        _train(model, optimizer, data, train_idx, val_idx, config, device, out, history, progress, log)
+        _train(model, optimizer, data, taken, train_idx, val_idx, config, device, out, history, progress, log)
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
         data.close()
+
+
+def _view_states(data: ShardSet, model: str) -> np.ndarray | None:
+    """(N, V) bool view states for a score network (None for the others); ShardError when the
+    shards lack what one learns from."""
+    if architecture(model).task != "scores":
+        return None
+    if data.gains is None:
+        raise ShardError(f"{model} learns from every candidate view's gain and overlap, and these shards do not all "
+                         "hold them for one common view set (imported data has none): train it on shards written by "
+                         "nbvdata generate")
+    return load_view_states(data.paths)
 
 
 def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path,
@@ -184,8 +203,8 @@ def _start(out: Path, config: TrainConfig) -> None:
     _write_text(out / "config.yaml", to_yaml(config))
 
 
-def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, train_idx: np.ndarray,
-           val_idx: np.ndarray, config: TrainConfig, device: torch.device, out: Path,
+def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet, taken: np.ndarray | None,
+           train_idx: np.ndarray, val_idx: np.ndarray, config: TrainConfig, device: torch.device, out: Path,
            history: list[dict], progress: bool, log: Callable[[str], None]) -> None:
     palette = torch.from_numpy(data.palette).to(device)
     classes = torch.from_numpy(class_positions()).float().to(device)
@@ -199,6 +218,8 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
         for epoch in range(first, config.epochs + 1):
             started = time.perf_counter()
             model.train()
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate(config, epoch)
             torch.manual_seed(_epoch_seed(config.seed, epoch))
             rng = np.random.default_rng([config.seed, epoch])
             order = rng.permutation(train_idx)
@@ -209,11 +230,14 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
             total = 0.0
             # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
             with contextlib.closing(_prefetch(lambda b: _batch(data, *b), batches)) as prepared:
-                for codes, targets in prepared:
+                for codes, targets, index, turned in prepared:
                     grids = to_grids(codes, palette)
-                    targets = torch.from_numpy(targets).to(device)
-                    output = model(grids)
-                    loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
+                    if model.task == "scores":
+                        loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
+                    else:
+                        targets = torch.from_numpy(targets).to(device)
+                        output = model(grids)
+                        loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
                     optimizer.zero_grad(set_to_none=True)
                     loss.backward()
                     optimizer.step()
@@ -225,13 +249,13 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
                 bar.close()
             train_seconds = time.perf_counter() - started
             row = {"epoch": epoch, "train_loss": total / len(order),
-                   **_validate(model, data, val_idx, palette, classes, loss_fn, device),
+                   **_validate(model, data, taken, val_idx, palette, classes, loss_fn, config, device),
                    "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds}
             history.append(row)
-            _save(out / "last.pt", model, optimizer, config, history, epoch, data.view_radius)
+            _save(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
             if row["val_loss"] < best:
                 best = row["val_loss"]
-                _save(out / "best.pt", model, optimizer, config, history, epoch, data.view_radius)
+                _save(out / "best.pt", model, optimizer, config, history, epoch, *_recorded(data))
             _write_csv(out / "metrics.csv", history)
             _plot(out / "curves.png", history, config.model)
             log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
@@ -239,20 +263,38 @@ def _train(model: NBVNet, optimizer: torch.optim.Optimizer, data: ShardSet, trai
                 f"gain ratio {format_ratio(row['val_gain_ratio'])}  {row['seconds']:.1f} s")
     except KeyboardInterrupt:
         # Keep the weights trained so far; the interrupted epoch is redone on --resume.
-        _save(out / "last.pt", model, optimizer, config, history, len(history), data.view_radius)
+        _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data))
         raise Interrupted(out / "last.pt", len(history)) from None
+
+
+def learning_rate(config: TrainConfig, epoch: int) -> float:
+    """The learning rate of ``epoch`` (1-based) under ``config.lr_schedule``."""
+    if config.lr_schedule == "cosine":
+        return config.lr * (1.0 + math.cos(math.pi * (epoch - 1) / config.epochs)) / 2.0
+    return config.lr
+
+
+def _score_loss(model: ScoreNet, grids: torch.Tensor, data: ShardSet, taken: np.ndarray, index: np.ndarray,
+                config: TrainConfig, device: torch.device,
+                turns: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(loss, (B, V) scores, (B, V) taken) of a score network on the samples ``index``, whose
+    grids were turned by ``turns`` quarter turns (the view directions turn alike)."""
+    gains, valid, scanned = (torch.from_numpy(array[index]).to(device) for array in (data.gains, data.valid, taken))
+    turned = None if turns is None or not turns.any() else torch.from_numpy(turns).to(device)
+    scores = model(grids, scanned, turned)
+    return score_loss(scores, gains, valid, scanned, config.score_loss, config.score_temperature), scores, scanned
 
 
 def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.default_rng([seed, epoch, 1]).integers(2 ** 62))
 
 
-def _batch(data: ShardSet, indices: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B, n, n, n) codes and (B, 3) float32 targets of ``indices``, rotated by ``turns``."""
+def _batch(data: ShardSet, indices: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(B, n, n, n) codes and (B, 3) float32 targets of ``indices``, rotated by ``turns``; ``indices``, ``turns``."""
     codes, targets = data.grids.take(indices), data.targets[indices]
     if turns.any():
         codes, targets = rotate_quarter_turns(codes, targets, turns)
-    return codes, np.ascontiguousarray(targets, dtype=np.float32)
+    return codes, np.ascontiguousarray(targets, dtype=np.float32), indices, turns
 
 
 def _prefetch(make: Callable, items: list) -> Iterator:
@@ -273,15 +315,24 @@ def _labels(targets: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
     return torch.argmax(targets @ classes.T, dim=1)
 
 
-def _validate(model: NBVNet, data: ShardSet, val_idx: np.ndarray, palette: torch.Tensor, classes: torch.Tensor,
-              loss_fn: nn.Module, device: torch.device) -> dict[str, float]:
+def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None, val_idx: np.ndarray,
+              palette: torch.Tensor, classes: torch.Tensor, loss_fn: nn.Module, config: TrainConfig,
+              device: torch.device) -> dict[str, float]:
+    """Validation loss and ``nbvtrain.metrics.evaluate``'s scores; a score network's prediction
+    is the position of the view it picks (``nbvtrain.scores.pick``)."""
     model.eval()
     predictions, loss = [], 0.0
     with torch.inference_mode():
         for i in range(0, len(val_idx), EVAL_BATCH):
             index = val_idx[i:i + EVAL_BATCH]
-            output = model(to_grids(data.grids.take(index), palette))
+            grids = to_grids(data.grids.take(index), palette)
             targets = torch.from_numpy(data.targets[index]).to(device)
+            if model.task == "scores":
+                batch_loss, scores, scanned = _score_loss(model, grids, data, taken, index, config, device)
+                loss += batch_loss.item() * len(index)
+                predictions.append(data.view_units[pick(scores, scanned)])
+                continue
+            output = model(grids)
             if model.task == "regression":
                 loss += loss_fn(output, targets).item() * len(index)
                 predictions.append(output.float().cpu().numpy())
@@ -294,13 +345,24 @@ def _validate(model: NBVNet, data: ShardSet, val_idx: np.ndarray, palette: torch
     return {"val_loss": loss / len(val_idx), **{f"val_{k}": v for k, v in scores.items()}}
 
 
-def _save(path: Path, model: NBVNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
-          history: list[dict], epoch: int, view_radius: float) -> None:
-    """A checkpoint: weights, optimiser, settings, model name, history; plain data, written atomically."""
-    save_checkpoint(path, {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
-                           "view_radius": view_radius, "state_dict": model.state_dict(),
-                           "optimizer": optimizer.state_dict(), "history": history,
-                           "target": "unit NBV position (x, y, z) / view radius"})
+def _save(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
+          history: list[dict], epoch: int, view_radius: float, scene: dict | None = None,
+          view_units: np.ndarray | None = None) -> None:
+    """A checkpoint: weights, optimiser, settings, model name, history, the scene it was trained in
+    (``nbvtrain.scene``) and, for a score network, its (V, 3) candidate views; plain data, written
+    atomically."""
+    state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
+             "view_radius": view_radius, "scene": scene, "state_dict": model.state_dict(),
+             "optimizer": optimizer.state_dict(), "history": history,
+             "target": "unit NBV position (x, y, z) / view radius"}
+    if model.task == "scores":
+        state |= {"view_units": view_units, "target": "one score per candidate view (view_units), higher = better"}
+    save_checkpoint(path, state)
+
+
+def _recorded(data: ShardSet) -> tuple[float, dict | None, np.ndarray | None]:
+    """What a checkpoint records of its training data: view radius, scene, candidate views."""
+    return data.view_radius, data.scene, data.view_units
 
 
 def _write_text(path: Path, text: str) -> None:

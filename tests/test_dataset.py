@@ -38,7 +38,7 @@ def _fit_samples(paths, indices, memory_limit_gb=8.0) -> tuple[torch.Tensor, np.
     """Grids and targets of ``indices`` as nbvtrain fit's loader makes them (no augmentation)."""
     data = load_shards(paths, memory_limit_gb)
     try:
-        codes, targets = _batch(data, np.asarray(indices), np.zeros(len(indices), dtype=np.int64))
+        codes, targets, _, _ = _batch(data, np.asarray(indices), np.zeros(len(indices), dtype=np.int64))
         return to_grids(codes, torch.from_numpy(data.palette)), targets
     finally:
         data.close()

@@ -12,8 +12,8 @@ AUTHORS_CLASS_POINTS = {0: (0.045261, -0.116411, 0.38), 1: (-0.188964, 0.093234,
                         13: (0.207602, -0.311932, -0.14)}
 
 
-@pytest.mark.parametrize("name", list(MODELS))
-def test_every_model_maps_grids_to_its_output(name):
+@pytest.mark.parametrize("name", [name for name, arch in MODELS.items() if arch.task != "scores"])
+def test_every_model_maps_grids_to_its_output(name):  # score networks: tests/test_scores.py
     torch.manual_seed(0)
     model = build_model(name).eval()
     grids = torch.rand(3, 1, 32, 32, 32)
@@ -35,17 +35,18 @@ def test_the_paper_sizes():
             assert conv.stride == (1, 1, 1) and conv.padding == (1, 1, 1) and conv.kernel_size == (3, 3, 3)
 
 
-@pytest.mark.parametrize("name", ["nbvnet-3-5", "nbvnet-4-5"])
+@pytest.mark.parametrize("name", ["nbvnet-3-5", "nbvnet-4-5", "nbvscore-fc3", "nbvscore-3"])
 def test_dropout_from_layer_n_to_the_end(name):
     names = layer_names(name)
+    views = np.eye(3) if MODELS[name].task == "scores" else None
     for start, layer in enumerate(names):
-        model = build_model(name, dropout_from=layer)
+        model = build_model(name, dropout_from=layer, views=views)
         assert sum(isinstance(m, nn.Dropout) for m in model.modules()) == len(names) - start
-    assert not any(isinstance(m, nn.Dropout) for m in build_model(name, dropout_from="none").modules())
-    assert sum(isinstance(m, nn.Dropout) for m in build_model(name, dropout_from="fc").modules()) == \
+    assert not any(isinstance(m, nn.Dropout) for m in build_model(name, "none", views=views).modules())
+    assert sum(isinstance(m, nn.Dropout) for m in build_model(name, "fc", views=views).modules()) == \
         len([n for n in names if n.startswith("fc")])
     with pytest.raises(ValueError, match="dropout_from='conv9'"):
-        build_model(name, dropout_from="conv9")
+        build_model(name, dropout_from="conv9", views=views)
 
 
 def test_unknown_model_names_the_choices():

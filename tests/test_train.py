@@ -222,3 +222,51 @@ def test_baselines(shards):
         assert mean_vector(data, train, train)["mse"] <= mean_direction(data, train, train)["mse"]
     finally:
         data.close()
+
+
+SCORE = ["--model", "nbvscore-3", "--batch-size", "16", "--threads", "1", "--lr", "1e-3", "--no-progress"]
+
+
+def test_a_score_network_trains_resumes_exactly_and_picks_unscanned_views(shards, tmp_path, capsys):
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    for run, epochs in ((straight, "3"), (resumed, "2")):
+        assert main(["fit", str(shards), "--epochs", epochs, "--out", str(run), *SCORE]) == 0
+    assert main(["fit", "--resume", "--epochs", "3", "--out", str(resumed), "--no-progress"]) == 0
+    a, b = _weights(straight), _weights(resumed)
+    assert all(torch.equal(a[key], b[key]) for key in a)
+    checkpoint = torch.load(straight / "best.pt", weights_only=True)
+    shard = sorted(shards.glob("*.h5"))[0]
+    with Shard(shard) as s:
+        last, step, run_key, views = s["last_view"], s["step"], s["run"], s["view_positions"]
+    assert checkpoint["task"] == "scores" and checkpoint["view_units"].shape == views.shape
+    np.testing.assert_allclose(checkpoint["view_units"].numpy() * 0.4, views, atol=1e-12)
+    assert checkpoint["scene"]["views_count"] == len(views) and checkpoint["scene"]["grid_size"] == 32
+    for row in checkpoint["history"]:
+        assert 0 < row["val_gain_ratio"] <= 1 and row["val_loss"] > 0
+    capsys.readouterr()
+    later = int(np.flatnonzero(step >= 3)[0])  # a state with three scanned views
+    scanned = sorted({int(v) for v in last[(run_key == run_key[later]) & (step <= step[later])]})
+    assert main(["predict", str(shard), "--index", str(later), "--checkpoint", str(straight / "best.pt")]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    assert answer["scanned"] == scanned and answer["view"] not in scanned and len(scanned) == 3
+    assert main(["predict", str(shard), "--index", str(later), "--checkpoint", str(straight / "best.pt"),
+                 "--scanned", f"0,1,{len(views) + 39}"]) == 2
+    assert f"--scanned: views [{len(views) + 39}] outside 0..{len(views) - 1}" in capsys.readouterr().err
+
+
+def test_only_a_score_network_with_views_as_inputs_turns(shards, tmp_path, capsys):
+    fc = [*SCORE[2:], "--model", "nbvscore-fc3"]
+    assert main(["fit", str(shards), "--epochs", "1", "--augment", "--out", str(tmp_path / "a"), *fc]) == 2
+    assert "quarter turns do not map the candidate views" in capsys.readouterr().err
+    assert main(["fit", str(shards), "--epochs", "1", "--augment", "--out", str(tmp_path / "b"), *SCORE]) == 0
+    assert not (tmp_path / "a").exists()
+
+
+def test_the_cosine_schedule_falls_from_lr_to_near_zero():
+    from nbvtrain.config import TrainConfig
+    from nbvtrain.train import learning_rate
+
+    config = TrainConfig(lr=1e-3, epochs=10, lr_schedule="cosine")
+    rates = [learning_rate(config, epoch) for epoch in range(1, 11)]
+    assert rates[0] == 1e-3 and all(a > b > 0 for a, b in zip(rates, rates[1:])) and rates[-1] < 3e-5
+    assert learning_rate(TrainConfig(lr=1e-3, epochs=10), 7) == 1e-3

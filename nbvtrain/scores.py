@@ -1,0 +1,83 @@
+"""Candidate-view scores: the losses a score network (``nbvscore-*``) learns from the full score
+vectors, and how scores become a choice.
+
+Every state of a shard carries the gain and overlap of every candidate view (``nbvdata.oracle``).
+A view is *eligible* at a state when it passes the overlap rule (overlap >= ``oracle.min_overlap``)
+and was not scanned yet; the label is the eligible view with the largest gain. The losses, each
+over the eligible views of the states whose best eligible gain is > 0 (the others carry no
+ranking and weigh 0):
+
+- ``listwise``: cross-entropy between the softmax of the scores over the unscanned views and the
+  target softmax((gain / best gain) / temperature) over the eligible views (ListNet, Cao et al.
+  2007). Views that break the overlap rule get target 0, so the network learns the rule too.
+- ``regression``: mean squared error between sigmoid(score) and gain / best gain over the
+  unscanned views, 0 for views that break the overlap rule.
+- ``argmax``: cross-entropy with the label alone (a 500-class classifier; the ablation's control
+  for what the full vectors add).
+
+The choice of a score network is the unscanned view with the highest score (``pick``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.nn import functional
+
+SCORE_LOSSES = ("listwise", "regression", "argmax")
+
+
+def targets(gains: torch.Tensor, valid: torch.Tensor, taken: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """((B, V) gain / best eligible gain, 0 where not eligible; (B,) bool state has a ranking).
+
+    gains (B, V) float, valid (B, V) bool (overlap rule passed), taken (B, V) bool (scanned)."""
+    eligible = valid & ~taken
+    masked = torch.where(eligible, gains, torch.zeros_like(gains))
+    best = masked.max(dim=1).values
+    ranked = best > 0
+    return masked / torch.where(ranked, best, torch.ones_like(best)).unsqueeze(1), ranked
+
+
+def score_loss(scores: torch.Tensor, gains: torch.Tensor, valid: torch.Tensor, taken: torch.Tensor,
+               kind: str = "listwise", temperature: float = 0.1) -> torch.Tensor:
+    """The mean loss ``kind`` (see the module docstring) of (B, V) scores over the ranked states.
+
+    gains (B, V), valid and taken (B, V) bool. 0 (with a gradient) when no state is ranked."""
+    if kind not in SCORE_LOSSES:
+        raise ValueError(f"score loss {kind!r}: choose one of {', '.join(SCORE_LOSSES)}")
+    relative, ranked = targets(gains.float(), valid, taken)
+    scores = scores.float()
+    if not ranked.any():
+        return scores.sum() * 0.0
+    relative, scores, eligible = relative[ranked], scores[ranked], (valid & ~taken)[ranked]
+    unscanned = ~taken[ranked]
+    if kind == "regression":
+        error = (torch.sigmoid(scores) - relative) ** 2
+        return (error * unscanned).sum() / unscanned.sum()
+    log_p = functional.log_softmax(scores.masked_fill(~unscanned, float("-inf")), dim=1)
+    if kind == "argmax":
+        return functional.nll_loss(log_p, relative.argmax(dim=1))
+    target = functional.softmax((relative / temperature).masked_fill(~eligible, float("-inf")), dim=1)
+    return -(target * log_p.masked_fill(~unscanned, 0.0)).sum(dim=1).mean()
+
+
+def pick(scores: np.ndarray | torch.Tensor, taken: np.ndarray | torch.Tensor) -> np.ndarray:
+    """(B,) the unscanned view with the highest score for (B, V) scores and (B, V) bool taken
+    (ties: the lowest index; when every view was scanned, the highest-scoring one)."""
+    scores = torch.as_tensor(scores).float()
+    taken = torch.as_tensor(taken, dtype=torch.bool)
+    full = taken.all(dim=1, keepdim=True)
+    return scores.masked_fill(taken & ~full, float("-inf")).argmax(dim=1).cpu().numpy()
+
+
+def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
+    """(V,) bool: the candidate views (unit directions (V, 3)) nearest in direction to each of
+    the scanned sensor positions (P, 3) (object-centred; any radius). A pose on a candidate
+    view marks exactly that view; a pose between views marks the nearest one."""
+    taken = np.zeros(len(view_units), dtype=bool)
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if len(positions):
+        norms = np.linalg.norm(positions, axis=1, keepdims=True)
+        directions = positions / np.where(norms > 0, norms, 1.0)
+        taken[np.argmax(directions @ np.asarray(view_units, dtype=np.float64).T, axis=1)] = True
+    return taken
