@@ -181,7 +181,7 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         with timer("scene"):
             obj, scene, cache = _mesh_scene(unit.source, config, threads)
         with timer("policy"):
-            planner = load_policy(policy, config.views.radius, threads) if policy is not None else None
+            planner = load_policy(policy, config, threads) if policy is not None else None
         episode = config.episode
         recorded = ("nbv_index", "gains", "overlaps", "coverage", "last_view")
         if episode.explore > 0 or planner is not None:  # off the oracle's path: record the moves
@@ -381,7 +381,7 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
         raise ConfigError(f"episode.oracle_mix={config.episode.oracle_mix} mixes oracle moves into a policy's: "
                           "pass --policy CHECKPOINT too, or leave it 0")
     if policy is not None:
-        policy = check_policy(policy, config.views.radius)
+        policy = check_policy(policy, config)
     prepare_out_dir(out_dir, config, policy)
     report = Report(out_dir, failures=list(failures))
     for name, reason in failures:

@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from nbvdata.config import ConfigError
+from nbvdata.config import ConfigError, SimConfig
 from nbvdata.mesh import sha256_file
 from nbvdata.views import Pose
 
@@ -69,18 +69,19 @@ class PolicySource:
         return {"sha256": self.sha256, "network": self.name}
 
 
-def check_policy(source: PolicySource, radius: float) -> PolicySource:
+def check_policy(source: PolicySource, config: SimConfig) -> PolicySource:
     """Load the policy once (in the main process, before any work is given out): PolicyError or
     the checkpoint's own one-line error now rather than in every worker. Returns ``source`` with
     the policy's ``name``."""
-    return PolicySource(source.path, source.sha256, load_policy(source, radius).name)
+    return PolicySource(source.path, source.sha256, load_policy(source, config).name)
 
 
 @functools.lru_cache(maxsize=2)
-def load_policy(source: PolicySource, radius: float, threads: int = 0) -> Policy:
+def load_policy(source: PolicySource, config: SimConfig, threads: int = 0) -> Policy:
     """The policy of ``source``, built by ``nbvtrain.policy`` (imported here, and only here), once
-    per process. ``radius``: the view sphere's, where a regression network's direction is placed;
-    ``threads`` > 0 limits torch to that many threads (parallel workers pass 1)."""
+    per process. ``config``: the run's settings (the view sphere a regression network's direction
+    is placed on, the candidate views a score network picks from; a checkpoint made in another
+    scene is refused); ``threads`` > 0 limits torch to that many threads (parallel workers pass 1)."""
     if sha256_file(source.path) != source.sha256:
         raise PolicyError(f"--policy {source.path}: the file changed while generating (sha256 "
                           f"{source.sha256[:12]}... expected): restore it, or start again")
@@ -89,4 +90,4 @@ def load_policy(source: PolicySource, radius: float, threads: int = 0) -> Policy
     except ImportError as error:
         raise PolicyError(f"--policy needs nbvtrain and PyTorch, which cannot be imported ({error}): "
                           'pip install torch==2.13.0 -e ".[train]"') from None
-    return CheckpointPolicy(source.path, radius, threads)
+    return CheckpointPolicy(source.path, config, threads)

@@ -28,6 +28,7 @@ INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torc
                  "--index-url https://download.pytorch.org/whl/cpu)")
 
 FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
+             "lr_schedule": "lr_schedule", "score_loss": "score_loss", "dropout": "dropout",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
              "augment": "augment", "seed": "seed", "device": "device", "threads": "threads"}
 
@@ -63,7 +64,11 @@ def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
     from nbvtrain.predict import GridError, Predictor, prediction_json
 
-    predictor = Predictor(args.checkpoint, device=args.device, k=args.k, radius=args.radius)
+    from nbvtrain.release import released_checkpoint
+
+    checkpoint = args.checkpoint or released_checkpoint("scores")
+    predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius)
+    taken = None
     if args.grid.suffix == ".npy":
         try:
             grid = np.load(args.grid)
@@ -79,12 +84,36 @@ def cmd_predict(args: argparse.Namespace) -> int:
             if not 0 <= args.index < len(shard):
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
+            if predictor.view_units is not None and shard.has("last_view"):
+                from nbvtrain.data import view_state
+
+                states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
+                taken = states[args.index]
+    if args.scanned is not None:
+        taken = _scanned(args.scanned, predictor)
     try:
-        (prediction,) = predictor.predict(grid)
+        (prediction,) = predictor.predict(grid, taken)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
-    print(prediction_json(prediction, predictor, source))
+    print(prediction_json(prediction, predictor, source, taken))
     return 0
+
+
+def _scanned(text: str, predictor) -> np.ndarray:
+    """--scanned 3,41,120 -> (V,) bool view state of a score network."""
+    if predictor.view_units is None:
+        raise ConfigError(f"--scanned: {predictor.name} is not a score network; it takes no view state")
+    views = len(predictor.view_units)
+    try:
+        indices = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ConfigError(f"--scanned {text!r}: give candidate view indices, e.g. --scanned 3,41,120") from None
+    bad = [i for i in indices if not 0 <= i < views]
+    if bad:
+        raise ConfigError(f"--scanned: views {bad} outside 0..{views - 1} (the network's candidate views)")
+    taken = np.zeros(views, dtype=bool)
+    taken[indices] = True
+    return taken
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -162,8 +191,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         sources, failures = mesh_sources(args.meshes)
     except MeshError as error:
         raise ConfigError(str(error)) from None
-    planners, skipped = build_planners(names, config, view_sphere(config.views), args.checkpoint,
-                                       args.class_checkpoint)
+    checkpoints = {"scores": args.score_checkpoint, "regression": args.checkpoint,
+                   "classification": args.class_checkpoint}
+    planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall)
     for message in skipped:
         print(f"nbvtrain evaluate: {message}", file=sys.stderr)
     if not planners:
@@ -173,8 +203,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers)
     report.failures = failures + report.failures
     settings = settings_dict(config, meshes=args.meshes, planners=[p.name for p in planners], scans=args.scans,
-                             starts=args.starts, seed=args.seed, checkpoint=args.checkpoint,
-                             class_checkpoint=args.class_checkpoint)
+                             starts=args.starts, seed=args.seed,
+                             checkpoints={p.name: str(p.predictor.path) for p in planners if hasattr(p, "predictor")},
+                             no_stall=args.no_stall)
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
     runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
     print(f"nbvtrain evaluate: {plural(runs, 'reconstruction')} in {report.seconds:.1f} s; wrote "
@@ -182,6 +213,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for name, reason in report.failures:
         print(f"nbvtrain evaluate: failed: {name}: {reason}", file=sys.stderr)
     return 1 if report.failures else 0
+
+
+def cmd_release(args: argparse.Namespace) -> int:
+    """Write the released models (float16 weights), their reference answers and model card."""
+    from nbvtrain.release import release
+
+    runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression)) if folder}
+    if not runs:
+        raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit)")
+    for path in release(runs, args.evaluation, args.out):
+        print(f"nbvtrain release: wrote {path}")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -204,6 +247,11 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--epochs", type=int, help="total epochs (default 600)")
     fit.add_argument("--batch-size", type=int, help="samples per step (default 250)")
     fit.add_argument("--lr", type=float, help="Adam learning rate (default 1e-4)")
+    fit.add_argument("--lr-schedule", choices=["constant", "cosine"], help="constant (paper, default) or cosine "
+                     "decay to 0 over the epochs")
+    fit.add_argument("--score-loss", choices=["listwise", "regression", "argmax"], help="score networks "
+                     "(nbvscore-*): the loss over every candidate view's gain (default listwise)")
+    fit.add_argument("--dropout", type=float, help="dropout probability (default 0.5)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")
     fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out; "
@@ -223,7 +271,10 @@ def build_parser() -> argparse.ArgumentParser:
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
     predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
     predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
-    predict.add_argument("--checkpoint", type=Path, required=True, help="a checkpoint of nbvtrain fit (best.pt)")
+    predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
+                         "released score network)")
+    predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
+                         "from the shard's run for a shard sample, none for a .npy grid)")
     predict.add_argument("--k", type=float, default=1.0, help="scale of the position beyond the view sphere "
                          "(paper: 2.5 for its 1 m robot scene)")
     predict.add_argument("--radius", type=float, help="view sphere radius, metres (default: the training data's)")
@@ -271,10 +322,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
     evaluate.add_argument("--meshes", type=Path, required=True, help="folder of meshes, one mesh file, or a .txt list")
-    evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt)")
+    evaluate.add_argument("--score-checkpoint", type=Path, help="candidate-score checkpoint (--model nbvscore-3; "
+                          "default: the released one)")
+    evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt; default: the "
+                          "released one)")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class)")
-    evaluate.add_argument("--planners", default="regression,classification,infogain,oracle,random",
-                          help="comma-separated, of regression,classification,infogain,oracle,random (default all)")
+    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
+                          help="comma-separated, of scores,regression,classification,infogain,oracle,random "
+                          "(default all)")
+    evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
+                          "scanned view: they fall back to the best alternative not scanned yet (planner names get "
+                          "-nostall; off = the paper's behaviour)")
     evaluate.add_argument("--scans", type=int, default=10, help="scans per reconstruction, the start included (10)")
     evaluate.add_argument("--starts", type=int, default=0, help="random start views per object besides the front one")
     evaluate.add_argument("--seed", type=int, default=0, help="seed of start views, reference points, random planner")
@@ -287,6 +345,17 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)
+
+    release = sub.add_parser("release", help="write released models and their model card from fit runs",
+                             description="Copy the best epochs of fit runs as float16 checkpoints with a model card "
+                             "and reference answers (what ships in nbvtrain/released/).")
+    release.add_argument("--scores", type=Path, help="run folder of a candidate-score network (nbvscore-*)")
+    release.add_argument("--regression", type=Path, help="run folder of a regression network (nbvnet-*)")
+    release.add_argument("--evaluation", type=Path, help="output folder of nbvtrain evaluate whose summary goes "
+                         "into the card")
+    release.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "released",
+                         help="folder to write (default: the package's nbvtrain/released)")
+    release.set_defaults(func=cmd_release)
     return parser
 
 

@@ -40,6 +40,7 @@ from nbvdata.sensor import Scan
 from nbvdata.views import Pose, ViewSet, look_at_rotations
 from nbvtrain.predict import NBVPrediction, Predictor
 from nbvtrain.release import released_checkpoint
+from nbvtrain.scores import scanned_views
 from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
@@ -248,8 +249,18 @@ class NetworkPlanner:
         return self.predictor.predict(grid)[0]
 
 
-PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner}
-"""Planner by the checkpoint's task; a candidate-score network adds its entry here."""
+class ScorePlanner(NetworkPlanner):
+    """A candidate-score checkpoint: the best-scoring candidate view not taken by a scan (each scan's
+    sensor position marks its nearest candidate view, ``nbvtrain.scores.scanned_views``; an
+    OctoMap has no scans, so none is marked)."""
+
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
+        state = None if taken is None else scanned_views(taken, self.predictor.view_units)
+        return self.predictor.predict(grid, state)[0]
+
+
+PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
+"""Planner by the checkpoint's task."""
 
 
 def load_planner(checkpoint: str | Path | None, device: str = "cpu") -> GridPlanner:

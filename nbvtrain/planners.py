@@ -4,9 +4,17 @@ A planner decides from what a real robot has, an ``Observation``: the occupancy 
 poses scanned so far. Only the oracle is privileged: it is also handed the simulation's
 ``Reconstruction`` (which knows the mesh) and is an upper bound, not a method.
 
+- ``scores``: a trained candidate-score network (``nbvscore-*``); the candidate view with the
+  highest score among those not scanned yet (a scanned pose marks its nearest candidate view,
+  ``nbvtrain.scores.scanned_views``), so it never repeats a view.
 - ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
   candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
 - ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
+- With ``no_stall`` (``nbvtrain evaluate --no-stall``), regression and classification do not
+  repeat a scan: when the candidate view nearest to their pose is one a scan already marked,
+  classification takes its next most likely class that repeats nothing, regression (and
+  classification when every class repeats) the candidate view nearest to its output that was
+  not scanned. Off (the default) is the paper's behaviour.
 - ``infogain``: Kriegel et al. 2012, exhaustive over 20 views spread like the candidate views
   (``views.layout``: the upper hemisphere by default, as the authors' data): every sensor
   ray walks the grid from the sensor (OctoMap's DDA, as the integration) until the first
@@ -33,8 +41,11 @@ from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
 from nbvdata.views import Pose, ViewSet, look_at_rotations, sphere_positions
+from nbvtrain.models import class_positions
+from nbvtrain.scores import pick, scanned_views
 
-PLANNERS = ("regression", "classification", "infogain", "oracle", "random")
+PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random")
+LEARNED = {"scores": "scores", "regression": "regression", "classification": "classification"}  # planner -> task
 
 
 @dataclass(frozen=True)
@@ -64,18 +75,31 @@ class Planner:
 
 
 class LearnedPlanner(Planner):
-    """A trained checkpoint (regression or classification), through ``nbvtrain.predict``."""
+    """A trained checkpoint (candidate scores, regression or classification), through
+    ``nbvtrain.predict``. ``views``: the run's candidate views (a score network's picks and the
+    no-stall rule are views of it); ``config``: the run's settings, which a checkpoint that
+    records its training scene must match (``nbvtrain.scene.check_scene``)."""
 
-    def __init__(self, checkpoint: str | Path, radius: float, expect: str):
+    def __init__(self, checkpoint: str | Path, radius: float, expect: str, views: ViewSet | None = None,
+                 no_stall: bool = False, config: SimConfig | None = None):
         from nbvtrain.predict import Predictor
+        from nbvtrain.scene import check_scene
 
         self.predictor = Predictor(checkpoint, radius=radius)
         task = self.predictor.model.task
         if task != expect:
-            flag = "--class-checkpoint" if task == "classification" else "--checkpoint"
+            flag = {"classification": "--class-checkpoint", "scores": "--score-checkpoint"}.get(task, "--checkpoint")
             raise ConfigError(f"{checkpoint}: a {task} network ({self.predictor.name}); pass it with {flag}")
-        self.name = expect
-        self._arguments = (checkpoint, radius, expect)
+        if config is not None:
+            check_scene(self.predictor.scene, config, checkpoint)
+        if views is None and (task == "scores" or no_stall):
+            raise ValueError("a score network and the no-stall rule need the run's candidate views")
+        if task == "scores" and not np.allclose(views.unit_positions, self.predictor.view_units, atol=1e-9):
+            raise ConfigError(f"{checkpoint}: scores {len(self.predictor.view_units)} candidate views other than this "
+                              f"run's {len(views)}: run with the settings it was trained with (--config/--set views.*)")
+        self.views, self.no_stall = views, no_stall and task != "scores"
+        self.name = expect + ("-nostall" if self.no_stall else "")
+        self._arguments = (checkpoint, radius, expect, views, no_stall, config)
 
     def __reduce__(self):
         """Pickled as its arguments: a worker process loads the checkpoint itself (the network's
@@ -83,8 +107,27 @@ class LearnedPlanner(Planner):
         return type(self), self._arguments
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        task = self.predictor.model.task
+        if task == "scores" or self.no_stall:
+            units = self.views.unit_positions
+            taken = scanned_views(np.array([pose.position for pose in observation.poses]).reshape(-1, 3), units)
+        if task == "scores":
+            scores = self.predictor.raw(observation.probabilities, taken)
+            return self.views[int(pick(scores, taken[None])[0])]
         (prediction,) = self.predictor.predict(observation.probabilities)
-        return prediction.pose
+        if not self.no_stall or not taken[int(np.argmax(units @ prediction.direction))]:
+            return prediction.pose
+        direction = prediction.direction
+        if task == "classification":
+            classes = class_positions()
+            for index in np.argsort(-self.predictor.raw(observation.probabilities)[0], kind="stable"):
+                if not taken[int(np.argmax(units @ classes[index]))]:
+                    return Pose.look_at(classes[index] * self.predictor.radius)
+            direction = classes[int(np.argmax(self.predictor.raw(observation.probabilities)[0]))]
+        free = np.flatnonzero(~taken)
+        if not len(free):
+            return prediction.pose
+        return self.views[int(free[np.argmax(units[free] @ direction)])]
 
 
 class OraclePlanner(Planner):
@@ -230,20 +273,25 @@ def _ray_information(origins, ends, probabilities, resolution, first_key, box_lo
         first[v, r] = met
 
 
-def build_planners(names: list[str], config: SimConfig, views: ViewSet, checkpoint: Path | None = None,
-                   class_checkpoint: Path | None = None) -> tuple[list[Planner], list[str]]:
-    """The named planners, and a message for each one skipped for want of a checkpoint."""
+def build_planners(names: list[str], config: SimConfig, views: ViewSet, checkpoints: dict[str, Path | None],
+                   no_stall: bool = False) -> tuple[list[Planner], list[str]]:
+    """The named planners, and a message for each learned one skipped for want of a checkpoint.
+
+    ``checkpoints``: task (scores, regression, classification) -> checkpoint file, None for the
+    released model of that task (``nbvtrain.release``) where there is one."""
+    from nbvtrain.release import NoReleasedModel, released_checkpoint
+
     planners, skipped = [], []
     for name in names:
-        if name == "regression" or name == "classification":
-            path = checkpoint if name == "regression" else class_checkpoint
+        if name in LEARNED:
+            path = checkpoints.get(name)
             if path is None:
-                flag = "--checkpoint" if name == "regression" else "--class-checkpoint"
-                model = "nbvnet-4-5" if name == "regression" else "nbvnet-class"
-                skipped.append(f"{name}: skipped, no checkpoint given (train one with nbvtrain fit SHARDS "
-                               f"--model {model}, then pass {flag} runs/NAME/best.pt)")
-                continue
-            planners.append(LearnedPlanner(path, config.views.radius, name))
+                try:
+                    path = released_checkpoint(name)
+                except NoReleasedModel as reason:
+                    skipped.append(f"{name}: skipped, {reason}")
+                    continue
+            planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config))
         elif name == "infogain":
             planners.append(InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                             config.oracle.min_overlap, layout=config.views.layout))

@@ -1,7 +1,8 @@
 """NBV poses from a trained checkpoint: ``Predictor(checkpoint).predict(grid)``.
 
 The network gives a position on the unit sphere's scale (regression: its tanh output,
-classification: the chosen class view). The pose puts the sensor at that direction, scaled to
+classification: the chosen class view, a score network: the unscanned candidate view with the
+highest score, given which views were scanned - none unless told). The pose puts the sensor at that direction, scaled to
 ``radius * k`` metres (``radius``: the view sphere the network was trained on, 0.4 m by
 default; ``k``: the paper's factor for a larger real scene, e.g. 2.5 for a 1 m sphere), looking
 at the object centre with no rotation about the optical axis (image rows horizontal).
@@ -26,7 +27,8 @@ import torch
 from nbvdata.config import ConfigError
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import GRID_SIZE, NBVNet, class_positions
+from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions
+from nbvtrain.scores import pick
 
 
 @dataclass(frozen=True)
@@ -47,36 +49,59 @@ class Predictor:
     """A checkpoint loaded for inference (eval mode, no gradients)."""
 
     def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
-        path = Path(checkpoint)
+        path = self.path = Path(checkpoint)
         state = load_checkpoint(path)
-        self.model: NBVNet = model_from(state, path)
+        self.model: NBVNet | ScoreNet = model_from(state, path)
         try:
             self.device = torch.device(device)
             self.model.to(self.device).eval()
         except (RuntimeError, AssertionError) as error:  # an unknown device, or one this torch lacks
             raise ConfigError(f"device {device!r}: {str(error).strip()[:80]}: use cpu") from None
         self._features = _fast_features(self.model, self.device)
-        self.name, self.epoch = state["model"], state["epoch"]
+        self.name, self.epoch, self.scene = state["model"], state["epoch"], state.get("scene")
+        self.view_units = state["view_units"].double().numpy() if self.model.task == "scores" else None
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)
-        self._classes = torch.from_numpy(class_positions()).float().to(self.device)
 
-    def outputs(self, grids: np.ndarray) -> np.ndarray:
-        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale).
-        GridError (a ValueError) for anything else (see ``check_grids``)."""
-        grids = check_grids(grids)
+    def raw(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
+        """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
+        positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
+        scanned views, default none). GridError (a ValueError) for a bad grid (``check_grids``)."""
+        grids = torch.from_numpy(check_grids(grids)).to(self.device).unsqueeze(1)
         with torch.inference_mode():
-            output = self._features(torch.from_numpy(grids).to(self.device).unsqueeze(1))
-            output = self.model.head(output)
-            if self.model.task == "classification":
-                output = self._classes[output.argmax(dim=1)]
-        return output.cpu().numpy().astype(np.float64)
+            if self.model.task != "scores":
+                return self.model.head(self._features(grids)).cpu().numpy().astype(np.float64)
+            state = self.taken(taken, len(grids))
+            features = self._features(self.model.encode(grids))
+            return self.model.head(features, torch.from_numpy(state).to(self.device)).cpu().numpy().astype(np.float64)
 
-    def predict(self, grids: np.ndarray) -> list[NBVPrediction]:
-        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions.
-        GridError (a ValueError) for anything else (see ``check_grids``)."""
+    def taken(self, taken: np.ndarray | None, batch: int) -> np.ndarray:
+        """(B, V) bool view states of a score network from (V,), (B, V) or None (nothing scanned)."""
+        views = len(self.view_units)
+        state = np.zeros((batch, views), dtype=bool) if taken is None else np.asarray(taken, dtype=bool)
+        state = np.broadcast_to(state, (batch, views)) if state.shape == (views,) else state
+        if state.shape != (batch, views):
+            raise GridError(f"view state has shape {np.shape(taken)}, expected ({views},) or ({batch}, {views}): one "
+                            f"flag per candidate view of {self.name}")
+        return np.array(state)  # a writable copy (torch.from_numpy wants one)
+
+    def outputs(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
+        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale):
+        the regression output, the chosen class's view, or the unscanned candidate view (``taken``,
+        see ``raw``) with the highest score. GridError (a ValueError) for a bad grid."""
+        raw = self.raw(grids, taken)
+        if self.model.task == "classification":
+            return class_positions()[raw.argmax(axis=1)]
+        if self.model.task == "scores":
+            return self.view_units[pick(raw, self.taken(taken, len(raw)))]
+        return raw
+
+    def predict(self, grids: np.ndarray, taken: np.ndarray | None = None) -> list[NBVPrediction]:
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions
+        (``taken``: a score network's scanned views, see ``raw``). GridError (a ValueError) for a
+        bad grid (see ``check_grids``)."""
         predictions = []
-        for raw in self.outputs(grids):
+        for raw in self.outputs(grids, taken):
             norm = np.linalg.norm(raw)
             direction = raw / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
             pose = Pose.look_at(direction * self.radius * self.k)
@@ -112,7 +137,7 @@ def check_grids(grids: np.ndarray) -> np.ndarray:
     return array[None] if array.ndim == 3 else array
 
 
-def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
+def _fast_features(model: NBVNet | ScoreNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
     """The convolutional part for inference: on a CPU with oneDNN, the convolutions run on
     oneDNN's blocked layout (3x faster at batch 1 here: 2.5 vs 7.7 ms for nbvnet-4-5, the same
     outputs to 1e-7; benchmarks/predict.py); elsewhere the model's own layers.
@@ -135,7 +160,8 @@ def _fast_features(model: NBVNet, device: torch.device) -> Callable[[torch.Tenso
                 layers.append(layer)
         fast = functools.partial(_run_mkldnn, layers)
         with torch.inference_mode():
-            fast(torch.full((1, 1) + (GRID_SIZE,) * 3, 0.5))  # fails here where this torch cannot
+            channels = model.features[0].in_channels
+            fast(torch.full((1, channels) + (GRID_SIZE,) * 3, 0.5))  # fails here where this torch cannot
     except (AttributeError, RuntimeError, TypeError):  # a torch without it: the plain layers
         return model.features
     return fast
@@ -153,7 +179,14 @@ def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: tor
     return grids.to_dense()
 
 
-def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str) -> str:
-    """The JSON ``nbvtrain predict`` prints."""
-    return json.dumps({"source": source, "model": predictor.name, "epoch": predictor.epoch,
-                       "radius": predictor.radius, "k": predictor.k, **prediction.to_dict()}, indent=2)
+def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str,
+                    taken: np.ndarray | None = None) -> str:
+    """The JSON ``nbvtrain predict`` prints; for a score network also the chosen candidate
+    ``view`` and the ``scanned`` views it was told of."""
+    extra = {}
+    if predictor.view_units is not None:
+        extra = {"view": int(np.argmax(predictor.view_units @ prediction.direction)),
+                 "scanned": [] if taken is None else np.flatnonzero(taken).tolist()}
+    return json.dumps({"source": source, "checkpoint": str(predictor.path), "model": predictor.name,
+                       "epoch": predictor.epoch, "radius": predictor.radius, "k": predictor.k, **extra,
+                       **prediction.to_dict()}, indent=2)

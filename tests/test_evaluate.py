@@ -25,7 +25,9 @@ from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, final
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
                                build_planners)
+from nbvtrain.scene import scene_record
 from nbvtrain.train import _save
+from nbvdata.views import view_sphere
 
 from reference_infogain import sampled_scores
 
@@ -47,16 +49,25 @@ def meshes(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def checkpoints(tmp_path_factory) -> dict[str, Path]:
-    """Untrained (seeded) networks saved as nbvtrain checkpoints: the planners' interface only."""
+def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
+    """Untrained (seeded) networks saved as nbvtrain checkpoints, trained in the smoke scene:
+    the planners' interface only."""
     folder = tmp_path_factory.mktemp("checkpoints")
+    units = view_sphere(config.views).unit_positions
     paths = {}
-    for name in ("nbvnet-3-3", "nbvnet-class"):
+    for name in ("nbvnet-3-3", "nbvnet-class", "nbvscore-3"):
         torch.manual_seed(0)
-        model = build_model(name)
+        model = build_model(name, views=units if name == "nbvscore-3" else None)
         paths[name] = folder / f"{name}.pt"
-        _save(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4)
+        _save(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4,
+              scene_record(config), units)
     return paths
+
+
+def _learned(checkpoints: dict[str, Path]) -> dict[str, Path]:
+    """build_planners' checkpoints: task -> file."""
+    return {"regression": checkpoints["nbvnet-3-3"], "classification": checkpoints["nbvnet-class"],
+            "scores": checkpoints["nbvscore-3"]}
 
 
 @pytest.fixture(scope="module")
@@ -73,11 +84,12 @@ def _rows(path: Path) -> list[dict]:
 def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
-                 "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--scans", "5", "--starts", "2",
+                 "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
+                 str(checkpoints["nbvscore-3"]), "--scans", "5", "--starts", "2",
                  "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
-    assert "30 reconstructions" in capsys.readouterr().out
+    assert "36 reconstructions" in capsys.readouterr().out
     rows = _rows(out / "coverage.csv")
-    planners = ["regression", "classification", "infogain", "oracle", "random"]
+    planners = ["scores", "regression", "classification", "infogain", "oracle", "random"]
     assert len(rows) == 2 * len(planners) * 3 * 5  # meshes x planners x starts x scans
     assert {r["planner"] for r in rows} == set(planners) and {r["mesh"] for r in rows} == {"mug", "ring"}
     runs: dict[tuple, list[dict]] = {}
@@ -95,7 +107,7 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
         oracle = float(runs[(mesh, "oracle", start)][-1]["coverage"])
         assert oracle >= float(runs[(mesh, "random", start)][-1]["coverage"])
     summary = (out / "summary.md").read_text()
-    assert "| object | regression | classification | infogain | oracle | random |" in summary
+    assert "| object | scores | regression | classification | infogain | oracle | random |" in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
     assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
@@ -121,26 +133,27 @@ def test_two_workers_give_the_same_outputs_as_one(meshes, checkpoints, tmp_path,
         for workers in ("1", "2"):
             out = tmp_path / workers
             assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
-                         "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--scans", "4", "--starts", "1",
+                         "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
+                         str(checkpoints["nbvscore-3"]), "--scans", "4", "--starts", "1",
                          "--config", str(SMOKE), "--out", str(out), "--no-progress", "--workers", workers]) == 1
             outputs[workers] = _without_timings(out) + ((out / "failures.tsv").read_text(),)
     finally:
         (meshes / "broken.obj").unlink()
     rows = outputs["1"][0]
-    assert len(rows) == 2 * 5 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
+    assert len(rows) == 2 * 6 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
     assert outputs["2"] == outputs["1"]
 
 
 def test_planners_without_checkpoints_are_skipped_and_errors_exit_2(meshes, checkpoints, tmp_path, capsys):
     out = tmp_path / "eval"
-    assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "regression,random", "--scans", "2",
-                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
-    assert "regression: skipped, no checkpoint given" in capsys.readouterr().err
+    assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "classification,random", "--scans",
+                 "2", "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    assert "classification: skipped, no classification model is released" in capsys.readouterr().err
     assert {r["planner"] for r in _rows(out / "coverage.csv")} == {"random"}
-    assert "regression: skipped" in (out / "summary.md").read_text()
+    assert "classification: skipped" in (out / "summary.md").read_text()
     for argv, message in [
         (["--planners", "oracle,astar"], "--planners 'oracle,astar': choose from"),
-        (["--planners", "regression"], "no planner left to run"),
+        (["--planners", "classification"], "no planner left to run"),
         (["--planners", "classification", "--class-checkpoint", str(checkpoints["nbvnet-3-3"])],
          "a regression network (nbvnet-3-3); pass it with --checkpoint"),
         (["--scans", "1"], "--scans 1: must be >= 2"),
@@ -214,8 +227,8 @@ def _run_guarded(config, scene, planners, meshes, monkeypatch):
 
 
 def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, monkeypatch):
-    planners, _ = build_planners(["regression", "classification", "infogain", "random", "oracle"], config,
-                                 scene.views, checkpoints["nbvnet-3-3"], checkpoints["nbvnet-class"])
+    planners, _ = build_planners(["scores", "regression", "classification", "infogain", "random", "oracle"], config,
+                                 scene.views, _learned(checkpoints))
     report = _run_guarded(config, scene, planners, meshes, monkeypatch)
     assert len(report.rows) == len(planners) * 3 and not report.failures
     assert isinstance(planners[-1], OraclePlanner)  # privileged: it may read the simulation
@@ -430,3 +443,54 @@ def test_information_gain_properties(config):
     assert planner.views.positions[best][2] > 0.3  # a view from high above
     assert planner.best_view(opened) == int(np.argmax(np.where(scores.overlaps >= config.oracle.min_overlap,
                                                                scores.information, -1)))
+
+
+def _positions(rows: list[dict]) -> list[tuple]:
+    return [tuple(np.round([row[k] for k in "xyz"], 9)) for row in rows]
+
+
+def test_the_scores_planner_never_returns_a_scanned_view(scene, config, checkpoints):
+    (planner,), _ = build_planners(["scores"], config, scene.views, _learned(checkpoints))
+    candidates = {tuple(np.round(p, 9)) for p in scene.views.positions}
+    for first in (0, 17, 42):
+        positions = _positions(reconstruct(scene, planner, first, 15, seed=first))
+        assert len(set(positions)) == 15 and set(positions) <= candidates
+
+
+def test_no_stall_falls_back_to_an_unscanned_view(scene, config, checkpoints):
+    """An untrained regression network answers about the same direction in every state, so it
+    repeats its pose; with --no-stall each pose marks a new candidate view."""
+    planners, _ = build_planners(["regression"], config, scene.views, _learned(checkpoints))
+    units = scene.views.unit_positions
+
+    def nearest(rows):
+        return [int(np.argmax(units @ (p / np.linalg.norm(p)))) for p in np.array(_positions(rows))]
+
+    stalled = _positions(reconstruct(scene, planners[0], 3, 8, seed=0))
+    assert len(set(nearest(reconstruct(scene, planners[0], 3, 8, seed=0)))) < 8
+    for name in ("regression", "classification"):
+        (planner,), _ = build_planners([name], config, scene.views, _learned(checkpoints), no_stall=True)
+        assert planner.name == f"{name}-nostall"
+        assert len(set(nearest(reconstruct(scene, planner, 3, 8, seed=0)))) == 8
+    # where the network's pose repeats nothing, --no-stall keeps it as it is
+    answer = np.array(stalled[1]) / np.linalg.norm(stalled[1])
+    start = int(np.argmin(units @ answer))  # the candidate farthest from the network's answer
+    plain = _positions(reconstruct(scene, planners[0], start, 2, seed=0))[1]
+    assert int(np.argmax(units @ (np.array(plain) / np.linalg.norm(plain)))) != start
+    (kept,), _ = build_planners(["regression"], config, scene.views, _learned(checkpoints), no_stall=True)
+    assert _positions(reconstruct(scene, kept, start, 2, seed=0))[1] == plain
+
+
+def test_a_checkpoint_of_another_scene_is_refused(meshes, checkpoints, tmp_path, capsys):
+    for planner, flag, name in (("scores", "--score-checkpoint", "nbvscore-3"),
+                                ("regression", "--checkpoint", "nbvnet-3-3")):
+        assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", planner, flag,
+                     str(checkpoints[name]), "--config", str(SMOKE), "--set", "views.count=40", "--scans", "2",
+                     "--out", str(tmp_path / "eval"), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "trained with other settings than this run's: views_count 60 " \
+            "(the run has 40)" in err, err
+    assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "regression", "--checkpoint",
+                 str(checkpoints["nbvnet-3-3"]), "--config", str(SMOKE), "--set", "mesh.object_size=0.2",
+                 "--scans", "2", "--out", str(tmp_path / "eval"), "--no-progress"]) == 2
+    assert "grid_extent" in capsys.readouterr().err

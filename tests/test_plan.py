@@ -394,10 +394,36 @@ def test_bad_input_is_one_line_and_exit_2(case, scene, checkpoint, tmp_path, cap
     _one_line_error(capsys, *expected)
 
 
-def test_without_a_checkpoint_it_asks_for_one_until_a_model_is_released(scene, tmp_path, capsys):
+def test_without_a_checkpoint_it_uses_the_released_score_network(scene, tmp_path, capsys):
     scans, poses, _ = scene
-    assert main(["plan", "--scans", str(_write_scans(tmp_path, scans, poses)), "--center", "0,0,0"]) == 2
-    _one_line_error(capsys, "no model is released yet: pass --checkpoint")
+    assert main(["plan", "--scans", str(_write_scans(tmp_path, scans, poses)), "--center", "0,0,0"]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    assert answer["model"] == "nbvscore-fc3"
+
+
+def test_a_score_network_never_answers_a_view_the_scans_took(scene, tmp_path, capsys):
+    """The scans' sensor poses mark their candidate views; the answer is the best other one,
+    the same as nbvtrain predict on the same grid with those views scanned."""
+    scans, poses, grid = scene
+    units = view_sphere(SimConfig().views).unit_positions
+    torch.manual_seed(0)
+    net = build_model("nbvscore-fc3", views=units)
+    with torch.no_grad():  # make the scanned views the network's favourites
+        net.joint_head[-1].bias[list(VIEWS)] += 100.0
+    path = tmp_path / "scores.pt"
+    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvscore-fc3"), [], 0, 0.4, None, units)
+    assert main(["plan", "--scans", str(_write_scans(tmp_path, scans, poses)), "--center", "0,0,0",
+                 "--checkpoint", str(path), "--save-grid", str(tmp_path / "grid.npy")]) == 0
+    planned = json.loads(capsys.readouterr().out)
+    view = int(np.argmax(units @ np.array(planned["position"]) / np.linalg.norm(planned["position"])))
+    assert view not in VIEWS
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(path), "--scanned",
+                 ",".join(map(str, VIEWS))]) == 0
+    predicted = json.loads(capsys.readouterr().out)
+    assert predicted["view"] == view and predicted["scanned"] == sorted(VIEWS)
+    np.testing.assert_allclose(planned["position"], predicted["position"], atol=1e-9)
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(path)]) == 0
+    assert json.loads(capsys.readouterr().out)["view"] in VIEWS  # told nothing, it takes a favourite
 
 
 def test_the_frame_maps_there_and_back(rng):

@@ -24,6 +24,7 @@ from nbvdata.policy import PolicySource  # noqa: E402
 from nbvdata.scene import Scene  # noqa: E402
 from nbvdata.shapes import builtin_object  # noqa: E402
 from nbvdata.shards import Shard  # noqa: E402
+from nbvdata.views import view_sphere  # noqa: E402
 from nbvtrain.config import TrainConfig  # noqa: E402
 from nbvtrain.evaluate import reconstruct  # noqa: E402
 from nbvtrain.models import build_model  # noqa: E402
@@ -32,19 +33,20 @@ from nbvtrain.train import _save  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
-TASKS = {"nbvnet-3-3": "regression", "nbvnet-class": "classification"}
+TASKS = {"nbvnet-3-3": "regression", "nbvnet-class": "classification", "nbvscore-3": "scores"}
 
 
 @pytest.fixture(scope="module")
 def checkpoints(tmp_path_factory) -> dict[str, Path]:
     """Untrained (seeded) networks saved as nbvtrain checkpoints: tiny policies."""
     folder = tmp_path_factory.mktemp("checkpoints")
+    units = view_sphere(_config().views).unit_positions
     paths = {}
-    for seed, name in enumerate(("nbvnet-3-3", "nbvnet-class", "nbvnet-3-3")):
+    for seed, name in enumerate(("nbvnet-3-3", "nbvnet-class", "nbvscore-3", "nbvnet-3-3")):
         torch.manual_seed(seed)
-        model = build_model(name)
-        paths[name if seed < 2 else "other"] = path = folder / f"{name}-{seed}.pt"
-        _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4)
+        model = build_model(name, views=units if name == "nbvscore-3" else None)
+        paths[name if seed < 3 else "other"] = path = folder / f"{name}-{seed}.pt"
+        _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4, None, units)
     return paths
 
 
@@ -74,7 +76,7 @@ def test_a_rollout_takes_the_planners_moves_and_labels_them_exactly(tmp_path, ch
     arrays = _arrays(tmp_path)
     mesh_id = mug[0].mesh_id
     scene = Scene.build(builtin_object("mug", config.mesh), config, scene_rng(0, mesh_id))
-    planner = LearnedPlanner(checkpoint, config.views.radius, TASKS[network])
+    planner = LearnedPlanner(checkpoint, config.views.radius, TASKS[network], scene.views)
     seen = np.array([scene.coverage.covered_by(scene.scanner.scan(scene.views[v]).hit_points)
                      for v in range(len(scene.views))])  # live scans: no bit matrix, no cache
     counts, observable = seen.sum(axis=1), seen.any(axis=0).sum()
