@@ -170,6 +170,10 @@ def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: 
     steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
     """
     run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
+    if len(last_view) and last_view.min() < 0:
+        raise ValueError("last_view -1: states reached through a pose that is no candidate view (a regression or "
+                         "classification --policy rollout), whose view state is unknown; train score networks on "
+                         "other shards")
     if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
         raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
     taken = np.zeros((len(run), views), dtype=bool)

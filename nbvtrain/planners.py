@@ -106,14 +106,19 @@ class LearnedPlanner(Planner):
         oneDNN weights cannot be pickled)."""
         return type(self), self._arguments
 
+    def next_view(self, observation: Observation) -> int:
+        """A score network's choice as a candidate view index (``next_pose`` is its pose)."""
+        taken = scanned_views(np.array([pose.position for pose in observation.poses]).reshape(-1, 3),
+                              self.views.unit_positions)
+        return int(pick(self.predictor.raw(observation.probabilities, taken), taken[None])[0])
+
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         task = self.predictor.model.task
-        if task == "scores" or self.no_stall:
+        if task == "scores":
+            return self.views[self.next_view(observation)]
+        if self.no_stall:
             units = self.views.unit_positions
             taken = scanned_views(np.array([pose.position for pose in observation.poses]).reshape(-1, 3), units)
-        if task == "scores":
-            scores = self.predictor.raw(observation.probabilities, taken)
-            return self.views[int(pick(scores, taken[None])[0])]
         (prediction,) = self.predictor.predict(observation.probabilities)
         if not self.no_stall or not taken[int(np.argmax(units @ prediction.direction))]:
             return prediction.pose

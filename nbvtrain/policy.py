@@ -21,7 +21,7 @@ from nbvtrain.planners import LearnedPlanner, Observation
 
 
 class CheckpointPolicy:
-    """``next_move(probabilities, poses) -> Pose`` of the network in ``checkpoint``.
+    """``next_move(probabilities, poses) -> view index | Pose`` of the network in ``checkpoint``.
 
     ``config``: the run's settings (view sphere and candidate views); ``threads`` > 0 limits
     torch to that many threads.
@@ -38,5 +38,10 @@ class CheckpointPolicy:
     def start(self, seed: np.random.SeedSequence) -> None:
         self.planner.start(seed)
 
-    def next_move(self, probabilities: np.ndarray, poses: tuple[Pose, ...]) -> Pose:
-        return self.planner.next_pose(Observation(probabilities, tuple(poses)))
+    def next_move(self, probabilities: np.ndarray, poses: tuple[Pose, ...]) -> int | Pose:
+        """A score network's candidate view index (so the shards record it as the view taken and
+        the view state stays known), or the regression or classification network's pose."""
+        observation = Observation(probabilities, tuple(poses))
+        if self.planner.predictor.model.task == "scores":
+            return self.planner.next_view(observation)
+        return self.planner.next_pose(observation)

@@ -134,6 +134,8 @@ def test_a_run_missing_a_state_has_no_view_state():
         view_state(np.array([4, 4]), np.array([1, 3]), np.array([0, 1]), 10)
     with pytest.raises(ValueError, match="outside 0..9"):
         view_state(np.array([0]), np.array([1]), np.array([10]), 10)
+    with pytest.raises(ValueError, match="a pose that is no candidate view"):  # a regression policy's rollout
+        view_state(np.array([0, 0]), np.array([1, 2]), np.array([3, -1]), 10)
 
 
 def test_the_readme_example_trains(shards, tmp_path, monkeypatch):

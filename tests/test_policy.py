@@ -85,7 +85,12 @@ def test_a_rollout_takes_the_planners_moves_and_labels_them_exactly(tmp_path, ch
         first = start_view(0, mesh_id, len(scene.views), run)
         assert arrays["last_view"][rows[0]] == first and (arrays["move"][rows[:-1]] == 2).all()
         taken = arrays["next_pose"][rows][arrays["move"][rows] >= 0]
-        assert len(taken) >= 2 and (arrays["next_view"][rows] == -1).all()  # poses, no candidate views
+        moved = arrays["next_view"][rows][arrays["move"][rows] >= 0]
+        assert len(taken) >= 2
+        if TASKS[network] == "scores":  # candidate views, recorded as such: the view state stays known
+            assert (moved >= 0).all() and np.array_equal(scene.views.positions[moved], taken[:, :3])
+        else:
+            assert (arrays["next_view"][rows] == -1).all()  # poses, no candidate views
 
         # the moves: nbvtrain evaluate's trajectory from the same start
         trajectory = reconstruct(scene, planner, first, len(taken) + 1, run_seed(0, mesh_id, run))
@@ -110,8 +115,9 @@ def test_a_rollout_takes_the_planners_moves_and_labels_them_exactly(tmp_path, ch
             covered |= scene.coverage.covered_by(scene.scanner.scan(pose).hit_points)
             live.scan_pose(pose)
             poses.append(pose)
-            if step + 1 < len(rows):
-                assert arrays["last_view"][rows[step + 1]] == -1  # the last scan was no candidate view
+            if step + 1 < len(rows):  # -1: the last scan was no candidate view
+                expected = moved[step] if TASKS[network] == "scores" else -1
+                assert arrays["last_view"][rows[step + 1]] == expected
     digest = hashlib.sha256(checkpoint.read_bytes()).hexdigest()
     assert arrays["policy"] == {"sha256": digest, "network": f"{network} epoch 0"}
 
