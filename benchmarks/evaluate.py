@@ -3,7 +3,8 @@
 States come from real reconstructions (the shared bunny, or the built-in mug when ../shared is
 absent; default settings: 176 x 144 sensor, 500 hemisphere views): random-planner runs of 10
 scans from 3 starts give 27 observations. Each planner's ``next_pose`` is timed on every one.
-Targets (issue 5): regression <= 5 ms, information gain over 20 views <= 0.3 s.
+Targets: regression <= 5 ms, information gain over 20 views <= 0.3 s (issue 5), the candidate-score
+networks <= 5 ms (issue 14; the released one when there is one, and an untrained nbvscore-3).
 
 The baseline for information gain, in the same process, is the same walk done the plain way
 (``sampled_scores`` of tests/reference_infogain.py: sample each ray densely with numpy); it is
@@ -32,6 +33,7 @@ from nbvdata.shapes import builtin_object
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
 from nbvtrain.planners import InfoGainPlanner, LearnedPlanner, Observation, OraclePlanner, RandomPlanner
+from nbvtrain.release import NoReleasedModel, released_checkpoint
 from nbvtrain.train import _save
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -92,18 +94,30 @@ def main() -> None:
         model = build_model("nbvnet-4-5")
         _save(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(), [], 0, config.views.radius)
         regression = LearnedPlanner(checkpoint, config.views.radius, "regression")
+        scores = {}
+        for name in ("nbvscore-fc3", "nbvscore-3"):
+            path = Path(tmp) / f"{name}.pt"
+            model = build_model(name, views=scene.views.unit_positions)
+            _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0,
+                  config.views.radius, None, scene.views.unit_positions)
+            scores[f"scores ({name})"] = (LearnedPlanner(path, config.views.radius, "scores", scene.views), 5.0)
+        try:
+            released = released_checkpoint("scores")
+            scores["scores (released)"] = (LearnedPlanner(released, config.views.radius, "scores", scene.views), 5.0)
+        except NoReleasedModel:
+            pass
     infogain = InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                config.oracle.min_overlap)
-    planners = {"regression": (regression, 5.0), "infogain": (infogain, 300.0),
+    planners = {"regression": (regression, 5.0), **scores, "infogain": (infogain, 300.0),
                 "oracle": (OraclePlanner(scene.views, config.oracle.min_overlap), None)}
     print(f"{obj.source}: {len(states)} states, {config.sensor.width} x {config.sensor.height} sensor, "
           f"{args.threads} threads; median time per NBV")
-    print(f"{'planner':12s} {'ms':>9s} {'target':>8s}  paper")
+    print(f"{'planner':26s} {'ms':>9s} {'target':>8s}  paper")
     medians = {}
     for name, (planner, target) in planners.items():
         ms = medians[name] = median_ms(planner, states)
         verdict = "" if target is None else f"{target:6.0f} ms {'met' if ms <= target else 'NOT met'}"
-        print(f"{name:12s} {ms:9.2f} {verdict:>16s}  {PAPER.get(name, '-')}")
+        print(f"{name:26s} {ms:9.2f} {verdict:>16s}  {PAPER.get(name, '-')}")
 
     rays = np.arange(0, infogain._ends.shape[1], 97)
     observation = states[len(states) // 2][0]

@@ -351,8 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "and reference answers (what ships in nbvtrain/released/).")
     release.add_argument("--scores", type=Path, help="run folder of a candidate-score network (nbvscore-*)")
     release.add_argument("--regression", type=Path, help="run folder of a regression network (nbvnet-*)")
-    release.add_argument("--evaluation", type=Path, help="output folder of nbvtrain evaluate whose summary goes "
-                         "into the card")
+    release.add_argument("--evaluation", type=Path, nargs="*", default=[], help="output folders of nbvtrain "
+                         "evaluate whose summaries go into the card")
     release.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "released",
                          help="folder to write (default: the package's nbvtrain/released)")
     release.set_defaults(func=cmd_release)

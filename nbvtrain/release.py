@@ -1,22 +1,171 @@
-"""The released model: the checkpoint commands use when none is given.
+"""The released models: the checkpoints commands use when none is given, and how to make them.
 
-One function, ``released_checkpoint``, is where commands look for it (``nbvtrain plan`` without
-``--checkpoint``). No model is released yet (the learned-planner issue will release one and
-fill this in), so today it says so in one line and names the fix.
+They ship inside the package (``nbvtrain/released/``, package data), so a plain ``pip install``
+has them: the candidate-score network (``scores``: the default of ``nbvtrain evaluate``,
+``predict`` and ``plan``) and the paper's regression network trained on the same data with the
+same budget (``regression``, for comparison). ``MODEL_CARD.md`` beside them says how they were
+made and what they score; ``reference.json`` holds each one's answer for ``reference_grid()``,
+which the tests reproduce from the installed files.
+
+``nbvtrain release SCORE_RUN REGRESSION_RUN --evaluation DIR`` writes them from two run folders
+of ``nbvtrain fit``: the best epoch's weights as float16 (half the bytes; they load as float32),
+without the optimiser state.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import platform
+from importlib import resources
 from pathlib import Path
+
+import numpy as np
 
 from nbvdata.config import ConfigError
 
+RELEASED = {"scores": "nbvscore-fc3.pt", "regression": "nbvnet-4-3.pt"}  # task -> file in nbvtrain/released/
+CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
+KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
+
 
 class NoReleasedModel(ConfigError):
-    """No released model is available; the message says what to pass instead."""
+    """No released model is available for a task; the message says what to pass instead."""
 
 
-def released_checkpoint() -> Path:
-    """The released model's checkpoint file; ``NoReleasedModel`` while none is released."""
-    raise NoReleasedModel("no model is released yet: pass --checkpoint runs/NAME/best.pt (a checkpoint written by "
-                          "nbvtrain fit)")
+def released_folder() -> Path:
+    return Path(str(resources.files("nbvtrain") / "released"))
+
+
+def released_checkpoint(task: str = "scores") -> Path:
+    """The released checkpoint of ``task`` (scores or regression); ``NoReleasedModel`` otherwise."""
+    name = RELEASED.get(task)
+    path = released_folder() / name if name else None
+    if path is None or not path.is_file():
+        raise NoReleasedModel(f"no {task} model is released with this package: pass a checkpoint written by nbvtrain "
+                              "fit (runs/NAME/best.pt)")
+    return path
+
+
+def reference_grid() -> np.ndarray:
+    """(32, 32, 32) float32: a fixed state to check released weights by - a box seen from +x
+    (occupied face, free space in front of it, the rest unknown), built from integers only."""
+    grid = np.full((32, 32, 32), 0.5, dtype=np.float32)
+    grid[20:32, 4:28, 0:24] = np.float32(0.1192)   # free space between the +x sensor and the box
+    grid[19, 10:22, 0:14] = np.float32(0.971)      # the box's face toward +x
+    grid[12:19, 10:22, 13] = np.float32(0.7)       # part of its top, seen at a slant
+    return grid
+
+
+def reference_answer(checkpoint: Path) -> dict:
+    """What ``checkpoint`` answers for ``reference_grid()`` with nothing scanned: the direction,
+    and for a score network the chosen view, its score and the runner-up's."""
+    from nbvtrain.predict import Predictor
+
+    predictor = Predictor(checkpoint)
+    (prediction,) = predictor.predict(reference_grid())
+    answer = {"direction": [round(float(x), 6) for x in prediction.direction]}
+    if predictor.view_units is not None:
+        scores = predictor.raw(reference_grid())[0]
+        order = np.argsort(-scores, kind="stable")
+        answer |= {"view": int(order[0]), "score": round(float(scores[order[0]]), 5),
+                   "runner_up": int(order[1]), "runner_up_score": round(float(scores[order[1]]), 5)}
+    return answer
+
+
+def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> list[Path]:
+    """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit), the
+    reference answers and the model card (with the summary.md tables of ``evaluations``, output
+    folders of nbvtrain evaluate) into ``out``."""
+    import torch
+
+    from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
+
+    out.mkdir(parents=True, exist_ok=True)
+    written, sections, answers = [], [], {}
+    for task, run in runs.items():
+        state = load_checkpoint(run / "best.pt", f"train one with nbvtrain fit --out {run}")
+        if state.get("task") != task:
+            raise ConfigError(f"{run}: a {state.get('task')} network, not a {task} one")
+        slim = {key: state[key] for key in KEEP if key in state}
+        slim["state_dict"] = {key: value.half() if value.is_floating_point() else value
+                              for key, value in state["state_dict"].items()}
+        slim["released_from"] = str(run)
+        path = out / RELEASED[task]
+        save_checkpoint(path, slim)
+        answers[task] = reference_answer(path)
+        written.append(path)
+        sections.append(_card_section(task, run, state, path))
+    (out / REFERENCE).write_text(json.dumps(answers, indent=1) + "\n")
+    card = out / CARD
+    card.write_text(_card(sections, answers, evaluations, torch.__version__))
+    return written + [out / REFERENCE, card]
+
+
+def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
+    from nbvtrain.checkpoint import load_checkpoint
+
+    data = json.loads((run / "data.json").read_text())
+    manifest = data.get("manifest")
+    last = run / "last.pt"
+    history = load_checkpoint(last)["history"] if last.is_file() else state["history"]  # the whole run
+    best = state["history"][-1]  # best.pt is saved at its epoch
+    seconds = sum(row["seconds"] for row in history)
+    config = state["config"]
+    settings = ", ".join(f"{key} {config[key]}" for key in ("model", "epochs", "batch_size", "lr", "lr_schedule",
+                                                            "dropout_from", "dropout", "augment", "score_loss",
+                                                            "split", "seed") if key in config)
+    lines = [f"## {task}: {state['model']} (`nbvtrain/released/{path.name}`, {path.stat().st_size / 2 ** 20:.1f} MiB)",
+             ""]
+    if manifest:
+        lines.append(f"- Data: {manifest['name']} {manifest['version']} (manifest sha256 {manifest['sha256']}), "
+                     f"{data['split']['kind']} split: {data['train_samples']} training and {data['val_samples']} "
+                     "validation samples.")
+    lines += [f"- Settings: {settings}.",
+              f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time, best epoch (lowest "
+              f"validation loss) {best['epoch']}, released.",
+              f"- Validation at the best epoch: loss {best['val_loss']:.4f}, gain ratio "
+              f"{best.get('val_gain_ratio', float('nan')):.3f}, invalid picks "
+              f"{100 * best.get('val_invalid_share', float('nan')):.1f} %, angle to the label "
+              f"{best['val_angle_deg']:.1f} deg, MSE {best['val_mse']:.4f}.", ""]
+    return "\n".join(lines)
+
+
+def _evaluate_arguments(path: Path) -> list[str]:
+    """The ``evaluate:`` block of an evaluation's config.yaml (its arguments), as lines."""
+    lines = path.read_text().splitlines() if path.is_file() else []
+    block = lines[:1]
+    for line in lines[1:]:
+        if not line.startswith((" ", "-")):
+            break
+        block.append(line)
+    return block
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str) -> str:
+    lines = ["# Model card: the released next-best-view networks", "",
+             "Two networks trained on the same published dataset with the same CPU budget: the candidate-score "
+             "network `nbvtrain evaluate`, `predict` and `plan` use by default, and the paper's regression network "
+             "for comparison. Weights are float16 (loaded as float32).", "",
+             f"Machine: {_cpu_name()}, {os.cpu_count()} cores, no GPU; "
+             f"torch {torch_version} (CPU), Python {platform.python_version()}.", ""]
+    lines += sections
+    lines += ["## Reference answers", "",
+              "For `nbvtrain.release.reference_grid()` with nothing scanned (tests/test_release.py checks that the "
+              "installed package reproduces them):", "", "```json", json.dumps(answers, indent=1), "```", ""]
+    for evaluation in evaluations:
+        summary = (evaluation / "summary.md").read_text()
+        lines += [f"## Evaluation: {summary.splitlines()[0].lstrip('# ')} (`{evaluation.name}`)", "",
+                  "```yaml", *_evaluate_arguments(evaluation / "config.yaml"), "```", "",
+                  summary.split("\n", 1)[1].strip(), ""]
+    return "\n".join(lines) + "\n"

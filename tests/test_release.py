@@ -1,0 +1,79 @@
+"""The released models: installed with the package (not only in the checkout), within 25 MB,
+reproducing the answers their card records, used when no checkpoint is given, with a card that
+says what they were trained on."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nbvtrain.release import CARD, REFERENCE, RELEASED, reference_answer, reference_grid, released_checkpoint
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLDER = ROOT / "nbvtrain" / "released"
+
+
+def test_the_released_files_are_in_the_package_and_small():
+    files = [FOLDER / name for name in RELEASED.values()]
+    assert all(path.is_file() for path in files), "run nbvtrain release (README: The released models)"
+    assert sum(path.stat().st_size for path in files) <= 25 * 10 ** 6
+    for task, name in RELEASED.items():
+        state = torch.load(FOLDER / name, weights_only=True)
+        assert state["task"] == task and "optimizer" not in state
+        assert all(value.dtype == torch.float16 for value in state["state_dict"].values() if value.is_floating_point())
+        assert state["scene"]["views_count"] == 500 and state["scene"]["grid_size"] == 32  # the default scene
+
+
+def test_the_card_names_the_data_and_the_figures():
+    card = (FOLDER / CARD).read_text()
+    manifest = json.loads((ROOT / "manifests" / "train-meshes-1.0.0.json").read_text())
+    import hashlib
+
+    sha = hashlib.sha256((ROOT / "manifests" / "train-meshes-1.0.0.json").read_bytes()).hexdigest()
+    assert f"{manifest['name']} {manifest['version']} (manifest sha256 {sha})" in card
+    for phrase in ("gain ratio", "min, best epoch", "## Evaluation", "| object | scores |", "Machine:"):
+        assert phrase in card
+
+
+def test_the_released_weights_reproduce_the_recorded_answers():
+    recorded = json.loads((FOLDER / REFERENCE).read_text())
+    for task in RELEASED:
+        answer = reference_answer(released_checkpoint(task))
+        np.testing.assert_allclose(answer["direction"], recorded[task]["direction"], atol=1e-4)
+        if task == "scores":
+            assert answer["view"] == recorded[task]["view"]
+            assert answer["score"] == pytest.approx(recorded[task]["score"], abs=1e-3)
+
+
+def test_an_installed_package_loads_them(tmp_path):
+    """pip install (no build isolation, offline) into a folder, then from elsewhere: the released
+    model is package data, found without the checkout."""
+    target = tmp_path / "site"
+    done = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index",
+                           "--quiet", "--target", str(target), str(ROOT)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    code = ("import json, sys, nbvtrain.release as r\n"
+            "assert r.__file__.startswith(sys.argv[1]), r.__file__\n"
+            "print(json.dumps({t: r.reference_answer(r.released_checkpoint(t)) for t in r.RELEASED}))\n")
+    done = subprocess.run([sys.executable, "-c", code, str(target)], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    answers, recorded = json.loads(done.stdout), json.loads((FOLDER / REFERENCE).read_text())
+    assert answers["scores"]["view"] == recorded["scores"]["view"]
+    np.testing.assert_allclose(answers["regression"]["direction"], recorded["regression"]["direction"], atol=1e-4)
+
+
+def test_commands_use_the_released_model_without_a_checkpoint(tmp_path, capsys):
+    from nbvtrain.cli import main
+
+    np.save(tmp_path / "grid.npy", reference_grid())
+    assert main(["predict", str(tmp_path / "grid.npy")]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    assert answer["checkpoint"].endswith(RELEASED["scores"]) and answer["scanned"] == []
+    assert answer["view"] == json.loads((FOLDER / REFERENCE).read_text())["scores"]["view"]
