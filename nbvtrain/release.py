@@ -112,9 +112,9 @@ def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
     best = state["history"][-1]  # best.pt is saved at its epoch
     seconds = sum(row["seconds"] for row in history)
     config = state["config"]
-    settings = ", ".join(f"{key} {config[key]}" for key in ("model", "epochs", "batch_size", "lr", "lr_schedule",
-                                                            "dropout_from", "dropout", "augment", "score_loss",
-                                                            "split", "seed") if key in config)
+    keys = ("model", "epochs", "batch_size", "lr", "lr_schedule", "dropout_from", "dropout", "augment",
+            *(("score_loss",) if task == "scores" else ()), "split", "seed")
+    settings = ", ".join(f"{key} {config[key]}" for key in keys if key in config)
     lines = [f"## {task}: {state['model']} (`nbvtrain/released/{path.name}`, {path.stat().st_size / 2 ** 20:.1f} MiB)",
              ""]
     if manifest:
