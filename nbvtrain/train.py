@@ -104,20 +104,24 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     if published is not None:
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
+    resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
     data = load_shards(shards, config.memory_limit_gb)
     try:
         taken = _view_states(data, config.model)
-        torch.manual_seed(config.seed)
-        model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units).to(device)
+        if resumed is None:
+            torch.manual_seed(config.seed)
+            model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units).to(device)
+            optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+            history: list[dict] = []
+        else:
+            model, optimizer, history, views = resumed
+            if views is not None and (data.view_units is None or views.shape != data.view_units.shape
+                                      or not np.allclose(views, data.view_units, atol=1e-9)):
+                raise ConfigError(f"--resume: the run in {out} scores other candidate views than these shards': "
+                                  "resume on the shards it was trained on, or start a new --out")
         if config.augment and model.task == "scores" and not model.turns:
             raise ConfigError(f"augment=true with {config.model}: its views are outputs, and quarter turns do not map "
                               "the candidate views onto each other; use nbvscore-3 (views as inputs) or augment=false")
-        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-        history: list[dict] = []
-        if checkpoint is not None:
-            restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
-            restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
-            history = checkpoint["history"]
         if published is None:
             train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
         else:
@@ -136,6 +140,22 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
         data.close()
+
+
+def _restored(config: TrainConfig, checkpoint: dict, out: Path,
+              device: torch.device) -> tuple[NBVNet | ScoreNet, torch.optim.Optimizer, list[dict], np.ndarray | None]:
+    """The network, optimiser, history and (a score network's) (V, 3) candidate views of the
+    checkpoint a run resumes from; a score network is built on the views it records."""
+    units = checkpoint.get("view_units")
+    views = units.double().numpy() if isinstance(units, torch.Tensor) else None
+    if architecture(config.model).task == "scores" and views is None:
+        raise ConfigError(f"{out / 'last.pt'}: a score network's checkpoint without its view_units; "
+                          f"{_resume_fix(out)}")
+    model = build_model(config.model, config.dropout_from, config.dropout, views=views).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
+    restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
+    return model, optimizer, checkpoint["history"], views
 
 
 def _view_states(data: ShardSet, model: str) -> np.ndarray | None:
