@@ -117,9 +117,12 @@ def test_help_ends_in_whole_sentences(capsys):
 
 def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
     run = tmp_path / "run"
+    # A runner started in the background (nohup ... &) passes SIGINT on as ignored, and Python then
+    # never raises KeyboardInterrupt: give the child the default disposition, as a terminal would.
     process = subprocess.Popen([sys.executable, "-m", "nbvtrain", "fit", str(shards), "--epochs", "100000",
                                 "--out", str(run), *FAST], stderr=subprocess.PIPE, text=True,
-                               env=dict(os.environ, PYTHONUNBUFFERED="1"))
+                               env=dict(os.environ, PYTHONUNBUFFERED="1"),
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while not (run / "last.pt").exists() and time.time() < deadline:
         time.sleep(0.2)
