@@ -38,7 +38,7 @@ from torch import nn
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
 from nbvdata.text import plural
-from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, restore, save_checkpoint
+from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, model_from, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
 from nbvdata.shards import ShardError
 from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
@@ -144,17 +144,13 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
 
 def _restored(config: TrainConfig, checkpoint: dict, out: Path,
               device: torch.device) -> tuple[NBVNet | ScoreNet, torch.optim.Optimizer, list[dict], np.ndarray | None]:
-    """The network, optimiser, history and (a score network's) (V, 3) candidate views of the
-    checkpoint a run resumes from; a score network is built on the views it records."""
-    units = checkpoint.get("view_units")
-    views = units.double().numpy() if isinstance(units, torch.Tensor) else None
-    if architecture(config.model).task == "scores" and views is None:
-        raise ConfigError(f"{out / 'last.pt'}: a score network's checkpoint without its view_units; "
-                          f"{_resume_fix(out)}")
-    model = build_model(config.model, config.dropout_from, config.dropout, views=views).to(device)
+    """The network (``nbvtrain.checkpoint.model_from``: a score network on the views it records),
+    optimiser, history and (a score network's) (V, 3) candidate views of the checkpoint a run
+    resumes from."""
+    model = model_from(checkpoint, out / "last.pt", _resume_fix(out)).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    restore(model, checkpoint["state_dict"], out / "last.pt", _resume_fix(out))
     restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
+    views = checkpoint["view_units"].double().numpy() if model.task == "scores" else None
     return model, optimizer, checkpoint["history"], views
 
 
