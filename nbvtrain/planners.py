@@ -45,7 +45,7 @@ from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, scanned_views
 
 PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random")
-LEARNED = {"scores": "scores", "regression": "regression", "classification": "classification"}  # planner -> task
+LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
 
 
 @dataclass(frozen=True)
@@ -106,33 +106,37 @@ class LearnedPlanner(Planner):
         oneDNN weights cannot be pickled)."""
         return type(self), self._arguments
 
+    def scanned(self, observation: Observation) -> np.ndarray:
+        """(V,) bool: the run's candidate views the observation's poses marked (each its nearest)."""
+        positions = np.array([pose.position for pose in observation.poses]).reshape(-1, 3)
+        return scanned_views(positions, self.views.unit_positions)
+
     def next_view(self, observation: Observation) -> int:
         """A score network's choice as a candidate view index (``next_pose`` is its pose)."""
-        taken = scanned_views(np.array([pose.position for pose in observation.poses]).reshape(-1, 3),
-                              self.views.unit_positions)
+        taken = self.scanned(observation)
         return int(pick(self.predictor.raw(observation.probabilities, taken), taken[None])[0])
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         task = self.predictor.model.task
         if task == "scores":
             return self.views[self.next_view(observation)]
-        if self.no_stall:
-            units = self.views.unit_positions
-            taken = scanned_views(np.array([pose.position for pose in observation.poses]).reshape(-1, 3), units)
         (prediction,) = self.predictor.predict(observation.probabilities)
-        if not self.no_stall or not taken[int(np.argmax(units @ prediction.direction))]:
+        if not self.no_stall:
             return prediction.pose
-        direction = prediction.direction
+        units, taken = self.views.unit_positions, self.scanned(observation)
+        if not taken[int(np.argmax(units @ prediction.direction))]:
+            return prediction.pose
         if task == "classification":
             classes = class_positions()
             for index in np.argsort(-self.predictor.raw(observation.probabilities)[0], kind="stable"):
                 if not taken[int(np.argmax(units @ classes[index]))]:
                     return Pose.look_at(classes[index] * self.predictor.radius)
-            direction = classes[int(np.argmax(self.predictor.raw(observation.probabilities)[0]))]
+        # regression, or every class repeats: the unscanned candidate nearest to the answer (a class
+        # view's direction is the prediction's)
         free = np.flatnonzero(~taken)
         if not len(free):
             return prediction.pose
-        return self.views[int(free[np.argmax(units[free] @ direction)])]
+        return self.views[int(free[np.argmax(units[free] @ prediction.direction)])]
 
 
 class OraclePlanner(Planner):
