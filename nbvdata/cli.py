@@ -24,6 +24,7 @@ from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
 from nbvdata.text import plural
+from nbvdata.views import parse_view_indices
 
 
 DESCRIPTION = """\
@@ -69,14 +70,9 @@ def _load_object(args: argparse.Namespace, config: SimConfig) -> ObjectMesh:
 
 def _parse_indices(text: str, count: int) -> list[int]:
     try:
-        indices = [int(part) for part in text.split(",") if part.strip()]
-    except ValueError:
-        raise UsageError(f"--views {text!r}: expected comma-separated view indices, e.g. --views 0,120,340") from None
-    bad = [i for i in indices if not 0 <= i < count]
-    if bad:
-        raise UsageError(f"--views: indices {bad} out of range; the view set has {plural(count, 'view')} "
-                         f"(0..{count - 1})")
-    return indices
+        return parse_view_indices(text, count, "--views", "0,120,340")
+    except ValueError as error:
+        raise UsageError(str(error)) from None
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nbvdata.config import ViewConfig
+from nbvdata.text import plural
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 _UP = np.array([0.0, 0.0, 1.0])
@@ -161,3 +162,19 @@ def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
     """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""
     positions = sphere_positions(config.count, config.radius, config.layout)
     return ViewSet(positions, look_at_rotations(positions))
+
+
+def parse_view_indices(text: str, count: int, flag: str, example: str) -> list[int]:
+    """Comma-separated view indices ("3,41,120") of a view set of ``count`` -> [3, 41, 120];
+    ValueError with a one-line message naming the option ``flag`` (and ``example``, a valid
+    value) for a non-integer or an index outside 0..count-1."""
+    try:
+        indices = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ValueError(f"{flag} {text!r}: expected comma-separated view indices, e.g. {flag} {example}") from None
+    bad = [i for i in indices if not 0 <= i < count]
+    if bad:
+        raise ValueError(f"{flag}: indices {bad} out of range; the view set has {plural(count, 'view')} "
+                         f"(0..{count - 1})")
+    return indices
+

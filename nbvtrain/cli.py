@@ -103,14 +103,13 @@ def _scanned(text: str, predictor) -> np.ndarray:
     """--scanned 3,41,120 -> (V,) bool view state of a score network."""
     if predictor.view_units is None:
         raise ConfigError(f"--scanned: {predictor.name} is not a score network; it takes no view state")
+    from nbvdata.views import parse_view_indices
+
     views = len(predictor.view_units)
     try:
-        indices = [int(part) for part in text.split(",") if part.strip()]
-    except ValueError:
-        raise ConfigError(f"--scanned {text!r}: give candidate view indices, e.g. --scanned 3,41,120") from None
-    bad = [i for i in indices if not 0 <= i < views]
-    if bad:
-        raise ConfigError(f"--scanned: views {bad} outside 0..{views - 1} (the network's candidate views)")
+        indices = parse_view_indices(text, views, "--scanned", "3,41,120")
+    except ValueError as error:
+        raise ConfigError(f"{error} (the network's candidate views)") from None
     taken = np.zeros(views, dtype=bool)
     taken[indices] = True
     return taken

@@ -254,7 +254,8 @@ def test_a_score_network_trains_resumes_exactly_and_picks_unscanned_views(shards
     assert answer["scanned"] == scanned and answer["view"] not in scanned and len(scanned) == 3
     assert main(["predict", str(shard), "--index", str(later), "--checkpoint", str(straight / "best.pt"),
                  "--scanned", f"0,1,{len(views) + 39}"]) == 2
-    assert f"--scanned: views [{len(views) + 39}] outside 0..{len(views) - 1}" in capsys.readouterr().err
+    assert (f"--scanned: indices [{len(views) + 39}] out of range; the view set has {len(views)} views "
+            f"(0..{len(views) - 1})") in capsys.readouterr().err
 
 
 def test_only_a_score_network_with_views_as_inputs_turns(shards, tmp_path, capsys):
