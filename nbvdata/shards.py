@@ -115,25 +115,35 @@ class GridPalette:
     def __init__(self, log_odds: bool = True):
         self._is_log_odds = log_odds
         unknown = 0.0 if log_odds else 0.5
-        self._codes: dict[float, int] = {unknown: 0}  # code 0: never observed, probability 0.5
-        self._log_odds: list[float] = [unknown]
+        self._log_odds: list[float] = [unknown]  # code 0: never observed, probability 0.5
+        # The known values in ascending order and their codes, for a binary search per voxel.
+        self._sorted = np.array([unknown], dtype=np.float64)
+        self._sorted_codes = np.array([0], dtype=np.uint16)
 
     def __len__(self) -> int:
         return len(self._log_odds)
 
     def encode(self, log_odds: np.ndarray) -> np.ndarray:
-        """(...) grid values -> (...) uint16 codes (new values get new codes)."""
-        values, inverse = np.unique(log_odds, return_inverse=True)
-        lut = np.empty(len(values), dtype=np.uint16)
-        for i, value in enumerate(values.tolist()):
-            code = self._codes.get(value)
-            if code is None:
-                code = self._codes[value] = len(self._log_odds)
-                if code > np.iinfo(np.uint16).max:
-                    raise ValueError("more than 65,536 distinct grid values in one shard")
-                self._log_odds.append(value)
-            lut[i] = code
-        return lut[inverse].reshape(log_odds.shape)
+        """(...) grid values -> (...) uint16 codes; values not seen before get new codes, in
+        ascending order of value."""
+        values = np.asarray(log_odds, dtype=np.float64)
+        slots = self._lookup(values)
+        known = self._sorted[slots] == values
+        if not known.all():
+            new = np.unique(values[~known])
+            if len(self._log_odds) + len(new) > np.iinfo(np.uint16).max + 1:
+                raise ValueError("more than 65,536 distinct grid values in one shard")
+            codes = np.arange(len(self._log_odds), len(self._log_odds) + len(new), dtype=np.uint16)
+            self._log_odds += new.tolist()
+            order = np.argsort(np.concatenate([self._sorted, new]), kind="stable")
+            self._sorted = np.concatenate([self._sorted, new])[order]
+            self._sorted_codes = np.concatenate([self._sorted_codes, codes])[order]
+            slots = self._lookup(values)
+        return self._sorted_codes[slots]
+
+    def _lookup(self, values: np.ndarray) -> np.ndarray:
+        """Index into the sorted known values of each of ``values`` (where it is, if known)."""
+        return np.minimum(np.searchsorted(self._sorted, values), len(self._sorted) - 1)
 
     def probabilities(self) -> np.ndarray:
         """(K,) float32 probability of each code, as ``OccupancyGrid.probabilities``."""

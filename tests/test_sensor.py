@@ -60,3 +60,24 @@ def test_near_and_far_range_limit_returns():
     pose = Pose.look_at([0.4, 0, 0])
     assert not MeshScanner(mesh, SensorConfig(width=8, height=6, far=0.25)).scan(pose).hit.any()
     assert not MeshScanner(mesh, SensorConfig(width=8, height=6, near=0.35)).scan(pose).hit.any()
+
+
+def test_casting_only_the_rays_near_the_box_changes_no_scan():
+    """The bounded cast (default) against casting every ray: the same points and hits, from
+    views all round, from inside the box, and for a flat mesh (a box of zero thickness)."""
+    from nbvdata.shapes import builtin_object
+    from nbvdata.config import ViewConfig
+    from nbvdata.views import view_sphere
+
+    config = SensorConfig(width=88, height=72, noise_std=0.001)
+    flat = trimesh.Trimesh([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0, 0.05, 0]], [[0, 1, 2]])
+    poses = list(view_sphere(ViewConfig(count=40, radius=0.3, layout="sphere")))
+    poses.append(Pose.look_at([0.01, 0.0, 0.005], target=[0.3, 0.1, 0.0]))  # inside the mug's box
+    for mesh in (builtin_object("mug").mesh, builtin_object("table_lamp").mesh, flat):
+        bounded, every = MeshScanner(mesh, config), MeshScanner(mesh, config, bounded=False)
+        fast = bounded.scan_many(poses, np.random.default_rng(3))
+        reference = every.scan_many(poses, np.random.default_rng(3))
+        assert sum(scan.hit.sum() for scan in reference) > 1000
+        for a, b in zip(fast, reference):
+            np.testing.assert_array_equal(a.points, b.points)
+            np.testing.assert_array_equal(a.hit, b.hit)

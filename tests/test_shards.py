@@ -64,6 +64,22 @@ def test_palette_recovers_the_grid_probabilities_exactly(rng):
     assert 3 < len(palette) < 256
 
 
+def test_palette_codes_values_in_order_of_first_appearance(rng):
+    """Against the plain rule (a dict; a grid's new values get codes in ascending order): the
+    same codes, grid after grid, with values repeating, new ones arriving late, -0.0 as 0.0."""
+    pool = np.array([0.0, -0.4, 0.85, 1.7, -0.8, 2.2, -2.1, 3.5], dtype=np.float32)
+    codes_of: dict[float, int] = {0.0: 0}
+    palette = GridPalette()
+    for count in (2, 2, 5, 3, 8, 8):
+        grid = rng.choice(pool[:count], size=(8, 8, 8))
+        grid[0, 0, 0] = -0.0
+        for value in sorted(set(grid.ravel().tolist())):
+            codes_of.setdefault(value, len(codes_of))
+        expected = np.vectorize(codes_of.__getitem__)(grid)
+        assert np.array_equal(palette.encode(grid), expected)
+    assert len(palette) == len(pool)
+
+
 def test_palette_grows_past_256_values(rng):
     palette = GridPalette()
     log_odds = np.linspace(-2, 3.5, 32 ** 3, dtype=np.float32).reshape(32, 32, 32)
