@@ -1,18 +1,25 @@
-"""Benchmark: one 176 x 144 scan cast and integrated into the 32^3 grid, next to OctoMap.
+"""Benchmark: one 176 x 144 scan cast and integrated into the 32^3 grid, against the code of
+another git revision and against OctoMap.
 
 For each mesh, scans from random views of the default hemisphere are cast (open3d) and
-integrated (nbvdata.grid); the same scans then go through OctoMap's insertPointCloud
-(pyoctomap) in a second pass of the same process. Times are medians over all scans; the ratio is the headline figure.
+integrated (nbvdata.grid) by this checkout's code and by ``--baseline``'s (its sensor.py and
+grid.py, loaded from git), alternating scan by scan; both must give the same points and the
+same voxel updates. The first ``--octomap-scans`` scans then go through OctoMap's
+insertPointCloud (pyoctomap) in a second pass of the same process. Times are medians.
 
-    python benchmarks/scan_integrate.py [--scans 40] [--threads 2]
+    python benchmarks/scan_integrate.py [--scans 40] [--threads 2] [--baseline 62dc09d]
 
-Target: cast + integrate <= 5 ms median on a 2-core machine.
+Target (issue 16): cast + integrate <= 5 ms median on a 2-core machine, voxel-identical to OctoMap.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,9 +33,11 @@ from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import builtin_object
 from nbvdata.views import view_sphere
 
-SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_MESHES = ROOT.parent / "shared" / "meshes"
 MESHES = ["test/bunny_hr__odedstein.obj", "test/teapot__alecjacobson.obj", "test/armadillo_remeshed__odedstein.obj",
           "train/drill__ycb_urdfmodels.obj", "train/desk_lamp__sh3d_blendswap_cc0.ply"]
+BASELINE = "62dc09d"  # the code before the work on issue 16
 
 
 def _objects(config: SimConfig) -> list:
@@ -38,7 +47,20 @@ def _objects(config: SimConfig) -> list:
     return [builtin_object(name, config.mesh) for name in ("mug", "table_lamp", "snowman")]
 
 
-def _median_ms(samples: list[float]) -> float:
+def _baseline_module(revision: str, name: str, folder: Path):
+    """nbvdata/<name>.py as it was at ``revision``, imported as ``baseline_<name>``."""
+    source = subprocess.run(["git", "-C", str(ROOT), "show", f"{revision}:nbvdata/{name}.py"], check=True,
+                            capture_output=True, text=True).stdout
+    path = folder / f"baseline_{name}.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location(f"baseline_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _ms(samples: list[float]) -> float:
     return 1e3 * statistics.median(samples)
 
 
@@ -46,6 +68,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scans", type=int, default=40, help="scans per mesh")
     parser.add_argument("--threads", type=int, default=numba.config.NUMBA_NUM_THREADS, help="numba threads")
+    parser.add_argument("--baseline", default=BASELINE, help="git revision to compare against")
+    parser.add_argument("--octomap-scans", type=int, default=5, help="scans per mesh through OctoMap (slow)")
     args = parser.parse_args()
     numba.set_num_threads(args.threads)
     try:
@@ -57,42 +81,62 @@ def main() -> None:
     config = SimConfig()
     views = view_sphere(config.views)
     rng = np.random.default_rng(0)
-    # warm-up: compile the kernels before timing
-    warm = MeshScanner(builtin_object("mug").mesh, config.sensor)
-    OccupancyGrid(config.scene_grid).integrate(warm.scan(views[0]), config.sensor.far)
+    with tempfile.TemporaryDirectory() as folder:
+        old_sensor = _baseline_module(args.baseline, "sensor", Path(folder))
+        old_grid = _baseline_module(args.baseline, "grid", Path(folder))
+        # warm-up: compile the kernels of both before timing
+        for sensor, grid in ((old_sensor, old_grid), (sys.modules["nbvdata.sensor"], sys.modules["nbvdata.grid"])):
+            scan = sensor.MeshScanner(builtin_object("mug").mesh, config.sensor).scan(views[0])
+            grid.OccupancyGrid(config.scene_grid).integrate(scan, config.sensor.far)
 
-    print(f"{'mesh':42s} {'faces':>7s} {'cast':>7s} {'integr':>7s} {'total':>7s} {'octomap':>8s} {'speedup':>8s}  (ms, median of {args.scans})")
-    totals, octomaps = [], []
-    for obj in _objects(config):
-        scanner = MeshScanner(obj.mesh, config.sensor)
-        grid = OccupancyGrid(config.scene_grid)
-        tree = pyoctomap.OcTree(grid.resolution) if pyoctomap else None
-        cast, integrate, total, octomap, scans = [], [], [], [], []
-        for view in rng.choice(len(views), args.scans, replace=False):
-            start = time.perf_counter()
-            scan = scanner.scan(views[int(view)])
-            middle = time.perf_counter()
-            grid.integrate(scan, config.sensor.far)
-            end = time.perf_counter()
-            cast.append(middle - start)
-            integrate.append(end - middle)
-            total.append(end - start)
-            scans.append(scan)
-        # OctoMap in a second pass over the same scans, so neither disturbs the other's caches.
-        for scan in scans if tree is not None else []:
-            points, origin = scan.points.astype(np.float64), scan.origin.astype(np.float64)
-            start = time.perf_counter()
-            tree.insertPointCloud(points, origin, max_range=config.sensor.far)
-            octomap.append(time.perf_counter() - start)
-        totals += total
-        octomaps += octomap
-        octo = f"{_median_ms(octomap):8.1f}" if octomap else f"{'-':>8s}"
-        ratio = f"{_median_ms(octomap) / _median_ms(total):7.1f}x" if octomap else f"{'-':>8s}"
-        print(f"{obj.source[:42]:42s} {len(obj.mesh.faces):7d} {_median_ms(cast):7.2f} {_median_ms(integrate):7.2f} "
-              f"{_median_ms(total):7.2f} {octo} {ratio}")
-    summary = f"all meshes: cast+integrate median {_median_ms(totals):.2f} ms (target <= 5 ms)"
-    if octomaps:
-        summary += f", OctoMap insertPointCloud {_median_ms(octomaps):.1f} ms, {_median_ms(octomaps) / _median_ms(totals):.1f}x faster"
+        print(f"{'':30s} {'before (' + args.baseline + ')':>26s} {'after (this checkout)':>26s}")
+        print(f"{'mesh':30s} {'cast':>8s} {'integr':>8s} {'total':>8s} {'cast':>8s} {'integr':>8s} {'total':>8s} "
+              f"{'x':>5s} {'octomap':>8s} {'x':>6s}  (ms, medians)")
+        before_all, after_all, octomap_all = [], [], []
+        for obj in _objects(config):
+            scanners = {"before": old_sensor.MeshScanner(obj.mesh, config.sensor),
+                        "after": MeshScanner(obj.mesh, config.sensor)}
+            grids = {"before": old_grid.OccupancyGrid(config.scene_grid), "after": OccupancyGrid(config.scene_grid)}
+            times = {key: {"cast": [], "integrate": [], "total": []} for key in scanners}
+            scans = []
+            for view in rng.choice(len(views), args.scans, replace=False):
+                updates = {}
+                for key in ("before", "after"):
+                    start = time.perf_counter()
+                    scan = scanners[key].scan(views[int(view)])
+                    middle = time.perf_counter()
+                    updates[key] = grids[key].scan_update(scan, config.sensor.far)
+                    grids[key].apply(updates[key])
+                    end = time.perf_counter()
+                    for phase, seconds in (("cast", middle - start), ("integrate", end - middle), ("total", end - start)):
+                        times[key][phase].append(seconds)
+                    scans.append(scan) if key == "after" else None
+                if not (np.array_equal(updates["before"].free, updates["after"].free)
+                        and np.array_equal(updates["before"].occupied, updates["after"].occupied)):
+                    raise SystemExit(f"{obj.source}: view {view} gives another grid update than the baseline's")
+            if not np.array_equal(grids["before"].log_odds, grids["after"].log_odds):
+                raise SystemExit(f"{obj.source}: the grids differ from the baseline's")
+            octomap = []
+            if pyoctomap is not None:
+                tree = pyoctomap.OcTree(grids["after"].resolution)
+                for scan in scans[:args.octomap_scans]:
+                    points, origin = scan.points.astype(np.float64), scan.origin.astype(np.float64)
+                    start = time.perf_counter()
+                    tree.insertPointCloud(points, origin, max_range=config.sensor.far)
+                    octomap.append(time.perf_counter() - start)
+            before_all += times["before"]["total"]
+            after_all += times["after"]["total"]
+            octomap_all += octomap
+            b, a = times["before"], times["after"]
+            octo = f"{_ms(octomap):8.1f} {_ms(octomap) / _ms(a['total']):5.0f}x" if octomap else f"{'-':>8s} {'-':>6s}"
+            print(f"{Path(obj.source).name[:30]:30s} {_ms(b['cast']):8.2f} {_ms(b['integrate']):8.2f} {_ms(b['total']):8.2f} "
+                  f"{_ms(a['cast']):8.2f} {_ms(a['integrate']):8.2f} {_ms(a['total']):8.2f} "
+                  f"{_ms(b['total']) / _ms(a['total']):4.2f}x {octo}")
+    summary = (f"all meshes: cast+integrate median {_ms(after_all):.2f} ms (target <= 5 ms), before {_ms(before_all):.2f} ms "
+               f"({_ms(before_all) / _ms(after_all):.2f}x); the same scans and grid updates as before")
+    if octomap_all:
+        summary += (f"; OctoMap insertPointCloud {_ms(octomap_all):.0f} ms per scan, "
+                    f"{_ms(octomap_all) / _ms(after_all):.0f}x slower")
     print(summary + f"; numba threads: {numba.get_num_threads()}")
 
 

@@ -211,6 +211,35 @@ def _advance_before(key, t, step, delta, axis, entry_t, entry_axis):
     return key, t, count
 
 
+# How far (metres) a ray's line may pass from the grid and still be walked. A walk's crossing
+# times stray from the exact line's by about 1e-13 m here, so a line farther away than this
+# never has a key in the grid. The test spares the fast-forward of a ray that passes beside the
+# grid almost parallel to a face: its entry crossing on that axis lies metres away, and adding
+# up the other axes' crossings until then takes tens of thousands of steps (most of the time
+# of a scan from some views, before this test).
+_BESIDE = 1e-6
+
+
+@numba.njit(cache=True, inline="always")
+def _line_near_grid(ox, oy, oz, d0, d1, d2, resolution, first_key, n):
+    """Whether the half-line origin + t * direction (t >= 0) passes within ``_BESIDE`` of the
+    grid's cube (slab test in float64)."""
+    low = first_key * resolution - _BESIDE
+    high = (first_key + n) * resolution + _BESIDE
+    enter, leave = 0.0, np.inf
+    for origin, direction in ((ox, d0), (oy, d1), (oz, d2)):
+        origin, direction = np.float64(origin), np.float64(direction)
+        if direction == 0.0:
+            if origin < low or origin > high:
+                return False
+            continue
+        near, far = (low - origin) / direction, (high - origin) / direction
+        if near > far:
+            near, far = far, near
+        enter, leave = max(enter, near), min(leave, far)
+    return enter <= leave
+
+
 @numba.njit(cache=True)
 def _skip_to_grid(k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n):
     """Fast-forward the DDA to the step before it first enters the grid, with identical state.
@@ -281,10 +310,13 @@ def _walk_start(ox, oy, oz, ex, ey, ez, resolution, first_key, free_mark):
     length64 = np.float64(length)
 
     if active and not was_inside and _end_not_before_grid(end0, end1, end2, s0, s1, s2, first_key, n):
-        k0, k1, k2, t0, t1, t2, skipped, entry_t = _skip_to_grid(
-            k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n)
-        if skipped < 0 or (skipped > 0 and entry_t > length64):
-            active = False  # never enters the grid, or ends before it
+        if not _line_near_grid(ox, oy, oz, d0, d1, d2, resolution, first_key, n):
+            active = False  # passes beside the grid
+        else:
+            k0, k1, k2, t0, t1, t2, skipped, entry_t = _skip_to_grid(
+                k0, k1, k2, s0, s1, s2, t0, t1, t2, dt0, dt1, dt2, first_key, n)
+            if skipped < 0 or (skipped > 0 and entry_t > length64):
+                active = False  # never enters the grid, or ends before it
     return (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, end0, end1, end2,
             length64, was_inside)
 

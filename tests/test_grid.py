@@ -150,3 +150,25 @@ def test_rays_without_return_carve_free_space_to_the_far_range():
         p = grid.probabilities()[:, 16, 16]
         assert (p[last_free:] == np.float32(0.4)).all() and (p[:last_free] == 0.5).all()
         assert grid.counts()["occupied"] == 0
+
+
+def test_identical_to_octomap_for_rays_grazing_the_grid_almost_parallel_to_a_face():
+    """Rays that pass beside the grid, or just inside it, nearly parallel to a face (the case the
+    walk rules out by geometry before stepping): each at an offset from the face's plane
+    between -1 mm and +1 mm, down to 1e-9 m, and tilted by 1e-3 to 1e-7 rad."""
+    grid = OccupancyGrid()
+    top = (grid.first_key + grid.size) * grid.resolution  # the z of the grid's top face
+    origin = np.array([0.3, 0.02, top], dtype=np.float32)
+    points = []
+    for offset in (-1e-3, -1e-5, -1e-7, -1e-9, 0.0, 1e-9, 1e-7, 1e-5, 1e-3):
+        for tilt in (1e-3, 1e-5, 1e-7, -1e-7, -1e-5):
+            for y in (-0.05, 0.0, 0.03):
+                end = np.array([-1.7, y, top + offset + 2.0 * tilt])
+                points.append(end)
+    points = np.array(points, dtype=np.float32)
+    scan = Scan(origin, points, np.zeros(len(points), dtype=bool))
+    ours = OccupancyGrid()
+    ours.integrate(scan, FAR)
+    reference = octomap_probabilities([scan], ours.config, FAR)
+    assert np.array_equal(ours.probabilities(), reference)
+    assert ours.counts()["free"] > 50
