@@ -41,15 +41,19 @@ class SurfaceCoverage:
         self._dims = (np.floor((self.points.max(axis=0) + config.threshold - self._low) / self._cell)
                       .astype(np.int64) + 1)
         cells = _cell_ids(self.points, self._low, self._cell, self._dims)
+        # The points sorted by cell: a cell's points, and a row of three cells, are contiguous.
         self._cell_order = np.argsort(cells, kind="stable")
+        self._sorted_points = np.ascontiguousarray(self.points[self._cell_order])
         self._cell_start = np.searchsorted(cells[self._cell_order], np.arange(int(np.prod(self._dims)) + 1))
 
     def covered_by(self, scan_points: np.ndarray) -> np.ndarray:
         """(P,) bool: reference points matched by any of ``scan_points`` (M, 3)."""
         scan_points = np.ascontiguousarray(scan_points, dtype=np.float64).reshape(-1, 3)
-        covered = np.zeros(len(self.points), dtype=bool)
-        _match_points(scan_points, self.points, self._cell_start, self._cell_order, self._low,
-                      self._cell, self._dims, self.config.threshold, self.config.metric == "box", covered)
+        covered_sorted = np.zeros(len(self.points), dtype=bool)
+        _match_points(scan_points, self._sorted_points, self._cell_start, self._low, self._cell, self._dims,
+                      self.config.threshold, self.config.metric == "box", covered_sorted)
+        covered = np.empty(len(self.points), dtype=bool)
+        covered[self._cell_order] = covered_sorted
         return covered
 
     def covered_by_scans(self, scans: Iterable[Scan]) -> np.ndarray:
@@ -91,8 +95,12 @@ def _cell_ids(points: np.ndarray, low: np.ndarray, cell: float, dims: np.ndarray
 
 
 @numba.njit(cache=True)
-def _match_points(scan_points, reference, cell_start, cell_order, low, cell, dims, threshold, box, covered):
-    """Set covered[r] for every reference point r within ``threshold`` of some scan point."""
+def _match_points(scan_points, reference, cell_start, low, cell, dims, threshold, box, covered):
+    """Set covered[r] for every reference point r within ``threshold`` of some scan point.
+
+    ``reference`` (P, 3) sorted by cell, cell c's points at [cell_start[c], cell_start[c + 1]);
+    ``covered`` (P,) in the same order.
+    """
     limit = threshold * threshold
     for m in range(scan_points.shape[0]):
         x, y, z = scan_points[m, 0], scan_points[m, 1], scan_points[m, 2]
@@ -101,19 +109,18 @@ def _match_points(scan_points, reference, cell_start, cell_order, low, cell, dim
         ck = int(math.floor((z - low[2]) / cell))
         if ci < -1 or cj < -1 or ck < -1 or ci > dims[0] or cj > dims[1] or ck > dims[2]:
             continue  # farther than one cell from every reference point
+        k_first, k_last = max(ck - 1, 0), min(ck + 2, dims[2])
         for i in range(max(ci - 1, 0), min(ci + 2, dims[0])):
             for j in range(max(cj - 1, 0), min(cj + 2, dims[1])):
                 base = (i * dims[1] + j) * dims[2]
-                for c in range(base + max(ck - 1, 0), base + min(ck + 2, dims[2])):
-                    for slot in range(cell_start[c], cell_start[c + 1]):
-                        r = cell_order[slot]
-                        if covered[r]:
-                            continue
-                        dx = reference[r, 0] - x
-                        dy = reference[r, 1] - y
-                        dz = reference[r, 2] - z
-                        if box:
-                            if abs(dx) < threshold and abs(dy) < threshold and abs(dz) < threshold:
-                                covered[r] = True
-                        elif dx * dx + dy * dy + dz * dz <= limit:
+                for r in range(cell_start[base + k_first], cell_start[base + k_last]):  # a row of cells
+                    if covered[r]:
+                        continue
+                    dx = reference[r, 0] - x
+                    dy = reference[r, 1] - y
+                    dz = reference[r, 2] - z
+                    if box:
+                        if abs(dx) < threshold and abs(dy) < threshold and abs(dz) < threshold:
                             covered[r] = True
+                    elif dx * dx + dy * dy + dz * dz <= limit:
+                        covered[r] = True
