@@ -66,8 +66,8 @@ class SurfaceCoverage:
     def covered_by_views(self, scanner: MeshScanner, views: ViewSet) -> np.ndarray:
         """(V, P) bool: the reference points a noise-free scan from each view covers."""
         covered = np.zeros((len(views), len(self.points)), dtype=bool)
-        for v, scan in enumerate(scanner.iter_scans(views, noiseless=True)):
-            covered[v] = self.covered_by(scan.hit_points)
+        for v, hit_points in enumerate(scanner.iter_hit_points(views)):
+            covered[v] = self.covered_by(hit_points)
         return covered
 
     def set_observable(self, scanner: MeshScanner, views: ViewSet) -> np.ndarray:

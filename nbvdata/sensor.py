@@ -31,7 +31,8 @@ from nbvdata._open3d import open3d as o3d
 from nbvdata.config import SensorConfig
 from nbvdata.views import Pose, ViewSet
 
-NO_HIT = np.uint32(2**32 - 1)  # Embree's primitive id of a ray that hits nothing
+NO_HIT = np.uint32(2**32 - 1)
+_EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets  # Embree's primitive id of a ray that hits nothing
 # Rays per open3d call; bounds the rays buffer to about 64 views x 25k rays x 24 B = 40 MB.
 _RAYS_PER_CALL = 64 * 176 * 144
 
@@ -81,7 +82,7 @@ class MeshScanner:
         self.threads = threads
         self._vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
         self._faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
-        self._box = _enlarged_box(self._vertices) if bounded and len(self._vertices) else None
+        self._box = _enlarged_box(self._vertices) if bounded and len(self._vertices) else _EVERYWHERE
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
         self._camera_rays = camera_rays(config)
@@ -105,41 +106,62 @@ class MeshScanner:
     def iter_scans(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None,
                    noiseless: bool = False) -> Iterator[Scan]:
         """Like ``scan_many`` but yields scans batch by batch, so memory stays bounded."""
+        if noiseless:
+            rng = None
+        elif self.config.noise_std > 0 and rng is None:
+            raise ValueError("sensor.noise_std > 0 needs a numpy Generator: pass rng=np.random.default_rng(seed)")
+        for positions, rotations in self._batches(poses):
+            yield from self._cast(positions, rotations, rng)
+
+    def iter_hit_points(self, poses: Sequence[Pose] | ViewSet) -> Iterator[np.ndarray]:
+        """The (H, 3) float32 hit points of a noise-free scan from each pose, the same as
+        ``scan.hit_points``, without the end points of the rays that return nothing."""
+        for positions, rotations in self._batches(poses):
+            rays, cast, t_cast = self._distances(positions, rotations)
+            points, counts = _hit_points(rays, cast, t_cast, self.config.near, self.config.far, self.rays_per_scan,
+                                         len(positions))
+            yield from np.split(points, np.cumsum(counts)[:-1])
+
+    def _batches(self, poses: Sequence[Pose] | ViewSet) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(positions (B, 3), world-to-camera rotations (B, 3, 3)) float64, in as few batches as
+        the rays buffer allows."""
         if isinstance(poses, ViewSet):
             positions, rotations = poses.positions, poses.rotations
         else:
             positions = np.array([p.position for p in poses], dtype=np.float64).reshape(-1, 3)
             rotations = np.array([p.rotation for p in poses], dtype=np.float64).reshape(-1, 3, 3)
-        if noiseless:
-            rng = None
-        elif self.config.noise_std > 0 and rng is None:
-            raise ValueError("sensor.noise_std > 0 needs a numpy Generator: pass rng=np.random.default_rng(seed)")
         per_call = max(1, _RAYS_PER_CALL // self.rays_per_scan)
         for start in range(0, len(positions), per_call):
-            yield from self._cast(positions[start:start + per_call], rotations[start:start + per_call], rng)
+            yield positions[start:start + per_call], rotations[start:start + per_call]
+
+    def _distances(self, positions: np.ndarray, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every ray of the views, and the distance to the first hit of those that may hit.
+
+        Returns rays (V * N, 6) float32 (origin, direction), cast (C,) int64 ascending indices
+        of the rays cast (those meeting the mesh's box), t_cast (C,) float64 their distance to
+        the plane of the triangle hit, inf for none.
+        """
+        n_views, n_rays = len(positions), self.rays_per_scan
+        rays = np.empty((n_views * n_rays, 6), dtype=np.float32)
+        near_box = np.empty(n_views * n_rays, dtype=np.bool_)
+        _fill_rays(self._camera_rays, positions, rotations, self._box, rays, near_box)
+        cast = np.flatnonzero(near_box)
+        t_cast = np.empty(len(cast), dtype=np.float64)
+        _plane_distances(rays, cast, self._triangles(rays[cast]), self._vertices, self._faces, t_cast)
+        return rays, cast, t_cast
 
     def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
-        rays = np.empty((n_views, n_rays, 6), dtype=np.float32)
-        _fill_rays(self._camera_rays, positions, rotations, rays)
-        flat = rays.reshape(-1, 6)
-        if self._box is None:
-            triangle = self._triangles(flat)
-        else:
-            near_box = np.flatnonzero(_meets_box(flat, self._box))
-            triangle = np.full(len(flat), NO_HIT, dtype=np.uint32)
-            triangle[near_box] = self._triangles(flat[near_box])
-        t_hit = np.empty(n_views * n_rays, dtype=np.float64)
-        _plane_distances(rays.reshape(-1, 6), triangle, self._vertices, self._faces, t_hit)
-        t_hit = t_hit.reshape(n_views, n_rays)
+        rays, cast, t_cast = self._distances(positions, rotations)
         if rng is not None and self.config.noise_std > 0:
-            finite = np.isfinite(t_hit)
-            t_hit[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum()))
+            finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
+            t_cast[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum()))
+        t_hit = np.full(n_views * n_rays, np.inf)
+        t_hit[cast] = t_cast
         points = np.empty((n_views, n_rays, 3), dtype=np.float32)
         hit = np.empty((n_views, n_rays), dtype=bool)
-        _end_points(flat, t_hit.reshape(-1), self.config.near, self.config.far, points.reshape(-1, 3),
-                    hit.reshape(-1))
-        return [Scan(rays[v, 0, :3].copy(), points[v], hit[v]) for v in range(n_views)]
+        _end_points(rays, t_hit, self.config.near, self.config.far, points.reshape(-1, 3), hit.reshape(-1))
+        return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v]) for v in range(n_views)]
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:
         """(M,) uint32 the triangle each of ``rays`` (M, 6) float32 hits first, NO_HIT for none."""
@@ -158,62 +180,56 @@ def _enlarged_box(vertices: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _meets_box(rays, box):
-    """(M,) bool: which rays (M, 6) float32 (origin, direction) meet the box (2, 3) at t >= 0
-    (slab test in float64)."""
-    meets = np.empty(rays.shape[0], dtype=np.bool_)
-    for i in range(rays.shape[0]):
-        enter, leave = 0.0, np.inf
-        for a in range(3):
-            origin, direction = np.float64(rays[i, a]), np.float64(rays[i, 3 + a])
-            if direction == 0.0:
-                if origin < box[0, a] or origin > box[1, a]:
-                    enter = np.inf
-                continue
-            near = (box[0, a] - origin) / direction
-            far = (box[1, a] - origin) / direction
-            if near > far:
-                near, far = far, near
-            enter = max(enter, near)
-            leave = min(leave, far)
-        meets[i] = enter <= leave
-    return meets
-
-
-@numba.njit(cache=True)
-def _fill_rays(camera_rays, positions, rotations, rays):
-    """rays[v, i] = (origin, R_v^T @ camera_rays[i]) as float32, in a fixed order of operations.
+def _fill_rays(camera_rays, positions, rotations, box, rays, near_box):
+    """rays[v * N + i] = (origin, R_v^T @ camera_rays[i]) as float32, in a fixed order of
+    operations, and near_box: whether that ray meets ``box`` at t >= 0 (slab test in float64).
 
     camera_rays (N, 3) float64, positions (V, 3) float64, rotations (V, 3, 3) float64 world to
-    camera, rays (V, N, 6) float32 out.
+    camera, box (2, 3) float64 low and high corners; rays (V * N, 6) float32 and near_box
+    (V * N,) bool out.
     """
-    for v in range(rays.shape[0]):
+    count = camera_rays.shape[0]
+    for v in range(positions.shape[0]):
         r = rotations[v]
-        for i in range(rays.shape[1]):
+        for i in range(count):
+            ray = v * count + i
             cx, cy, cz = camera_rays[i, 0], camera_rays[i, 1], camera_rays[i, 2]
-            rays[v, i, 0] = positions[v, 0]
-            rays[v, i, 1] = positions[v, 1]
-            rays[v, i, 2] = positions[v, 2]
+            enter, leave = 0.0, np.inf
             for a in range(3):
-                rays[v, i, 3 + a] = (cx * r[0, a] + cy * r[1, a]) + cz * r[2, a]
+                origin = np.float32(positions[v, a])
+                direction = np.float32((cx * r[0, a] + cy * r[1, a]) + cz * r[2, a])
+                rays[ray, a] = origin
+                rays[ray, 3 + a] = direction
+                if direction == 0.0:
+                    if origin < box[0, a] or origin > box[1, a]:
+                        enter = np.inf
+                    continue
+                inverse = 1.0 / np.float64(direction)
+                near = (box[0, a] - np.float64(origin)) * inverse
+                far = (box[1, a] - np.float64(origin)) * inverse
+                enter = max(enter, min(near, far))
+                leave = min(leave, max(near, far))
+            near_box[ray] = enter <= leave
 
 
 @numba.njit(cache=True)
-def _plane_distances(rays, triangle, vertices, faces, t_hit):
-    """t_hit[i] = distance along ray i to the plane of the triangle it hit, inf for a miss.
+def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
+    """t_cast[c] = distance along ray cast[c] to the plane of the triangle it hit, inf for a miss.
 
-    rays (M, 6) float32, triangle (M,) uint32 (2^32 - 1 = no hit), vertices (P, 3) float32,
-    faces (F, 3) uint32, t_hit (M,) float64 out. The float32 inputs are exact in float64.
+    rays (M, 6) float32, cast (C,) int64 indices into rays, triangle (C,) uint32 (NO_HIT = no
+    hit), vertices (P, 3) float32, faces (F, 3) uint32, t_cast (C,) float64 out. The float32
+    inputs are exact in float64.
     """
-    for i in range(rays.shape[0]):
-        f = triangle[i]
+    for c in range(cast.shape[0]):
+        f = triangle[c]
         if f >= faces.shape[0]:
-            t_hit[i] = np.inf
+            t_cast[c] = np.inf
             continue
-        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        i = cast[c]
+        a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
         ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
         e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
-        e2x, e2y, e2z = vertices[c, 0] - ax, vertices[c, 1] - ay, vertices[c, 2] - az
+        e2x, e2y, e2z = vertices[d, 0] - ax, vertices[d, 1] - ay, vertices[d, 2] - az
         nx = e1y * e2z - e1z * e2y
         ny = e1z * e2x - e1x * e2z
         nz = e1x * e2y - e1y * e2x
@@ -221,7 +237,25 @@ def _plane_distances(rays, triangle, vertices, faces, t_hit):
         dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
         along = (nx * dx + ny * dy) + nz * dz
         across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
-        t_hit[i] = across / along if along != 0.0 else np.inf
+        t_cast[c] = across / along if along != 0.0 else np.inf
+
+
+@numba.njit(cache=True)
+def _hit_points(rays, cast, t_cast, near, far, rays_per_view, views):
+    """The hit points of the cast rays (near <= t <= far), computed as ``_end_points`` does, in
+    ray order: points (H, 3) float32 and counts (views,) int64 per view."""
+    points = np.empty((cast.shape[0], 3), dtype=np.float32)
+    counts = np.zeros(views, dtype=np.int64)
+    h = 0
+    for c in range(cast.shape[0]):
+        t = t_cast[c]
+        if t >= near and t <= far:
+            i = cast[c]
+            for a in range(3):
+                points[h, a] = np.float64(rays[i, a]) + t * np.float64(rays[i, 3 + a])
+            counts[i // rays_per_view] += 1
+            h += 1
+    return points[:h], counts
 
 
 @numba.njit(cache=True)

@@ -81,3 +81,6 @@ def test_casting_only_the_rays_near_the_box_changes_no_scan():
         for a, b in zip(fast, reference):
             np.testing.assert_array_equal(a.points, b.points)
             np.testing.assert_array_equal(a.hit, b.hit)
+        exact = every.scan_many(poses, noiseless=True)
+        for hit_points, scan in zip(bounded.iter_hit_points(poses), exact):  # the scene's path
+            np.testing.assert_array_equal(hit_points, scan.hit_points)
