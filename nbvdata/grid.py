@@ -97,7 +97,10 @@ class OccupancyGrid:
         origin = np.ascontiguousarray(scan.origin, dtype=np.float32)
         self._free_mark[...] = 0
         self._occupied_mark[...] = 0
-        _mark_rays(origin, points, float(max_range), self.resolution, self.first_key,
+        low = self.first_key * self.resolution - _NEAR_GRID
+        high = (self.first_key + self.size) * self.resolution + _NEAR_GRID
+        rays = _rays_near_grid(origin, points, low, high)
+        _mark_rays(origin, points, rays, float(max_range), self.resolution, self.first_key,
                    self._free_mark, self._occupied_mark)
         occupied = np.flatnonzero(self._occupied_mark).astype(np.int32)
         free = np.flatnonzero((self._free_mark != 0) & (self._occupied_mark == 0)).astype(np.int32)
@@ -361,18 +364,53 @@ def _free_walk_end(ox, oy, oz, px, py, pz, max_range, inv_resolution, first_key,
     return ox + (dx / length) * reach, oy + (dy / length) * reach, oz + (dz / length) * reach
 
 
+# How far (metres) a ray's line may pass from the grid and be left out of the scan's update
+# altogether. The walk follows the line from the sensor through the point up to float32
+# rounding (about 1e-7 m here), so a ray whose line keeps farther away than this from the grid
+# frees no voxel of it and ends outside it.
+_NEAR_GRID = 1e-4
+
+
+@numba.njit(cache=True)
+def _rays_near_grid(origin, points, low, high):
+    """(R,) int64 indices of the points whose ray from ``origin`` (the half-line through the
+    point) meets the cube [low, high]^3 (slab test in float64)."""
+    near = np.empty(points.shape[0], dtype=np.int64)
+    count = 0
+    for i in range(points.shape[0]):
+        enter, leave = 0.0, np.inf
+        for a in range(3):
+            start = np.float64(origin[a])
+            direction = np.float64(points[i, a]) - start
+            if direction == 0.0:
+                if start < low or start > high:
+                    enter = np.inf
+                continue
+            inverse = 1.0 / direction
+            first, second = (low - start) * inverse, (high - start) * inverse
+            enter = max(enter, min(first, second))
+            leave = min(leave, max(first, second))
+        if enter <= leave:
+            near[count] = i
+            count += 1
+    return near[:count]
+
+
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def _mark_rays(origin, points, max_range, resolution, first_key, free_mark, occupied_mark):
-    """Mark the voxels a scan frees and occupies (OctoMap computeUpdate, before the hit-wins rule).
+def _mark_rays(origin, points, rays, max_range, resolution, first_key, free_mark, occupied_mark):
+    """Mark the voxels a scan frees and occupies (OctoMap computeUpdate, before the hit-wins rule);
+    ``rays`` indexes the points whose rays come near the grid (the others mark nothing).
 
     Rays are walked two at a time in one loop: each DDA step is a short chain of dependent
     operations, and interleaving two independent chains keeps the core busy.
     """
     inv_resolution = 1.0 / resolution
     ox, oy, oz = origin[0], origin[1], origin[2]
-    count = points.shape[0]
+    count = rays.shape[0]
+    if count == 0:
+        return
     for pair in numba.prange((count + 1) // 2):
-        a, b = 2 * pair, min(2 * pair + 1, count - 1)  # an odd count walks the last ray twice
+        a, b = rays[2 * pair], rays[min(2 * pair + 1, count - 1)]  # an odd count walks the last ray twice
         ex, ey, ez = _free_walk_end(ox, oy, oz, points[a, 0], points[a, 1], points[a, 2], max_range,
                                     inv_resolution, first_key, occupied_mark)
         (on_a, a0, a1, a2, ta0, ta1, ta2, sa0, sa1, sa2, da0, da1, da2, ea0, ea1, ea2, la,

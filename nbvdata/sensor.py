@@ -20,6 +20,7 @@ against casting every ray), and a scan of a small object costs a fraction of the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Iterator, Sequence
 
@@ -86,6 +87,7 @@ class MeshScanner:
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
         self._camera_rays = camera_rays(config)
+        self._tangents = np.array([np.tan(config.hfov / 2), np.tan(config.vfov / 2)])
 
     @property
     def rays_per_scan(self) -> int:
@@ -117,7 +119,7 @@ class MeshScanner:
         """The (H, 3) float32 hit points of a noise-free scan from each pose, the same as
         ``scan.hit_points``, without the end points of the rays that return nothing."""
         for positions, rotations in self._batches(poses):
-            rays, cast, t_cast = self._distances(positions, rotations)
+            rays, cast, t_cast = self._distances(positions, rotations, every=False)
             points, counts = _hit_points(rays, cast, t_cast, self.config.near, self.config.far, self.rays_per_scan,
                                          len(positions))
             yield from np.split(points, np.cumsum(counts)[:-1])
@@ -134,17 +136,20 @@ class MeshScanner:
         for start in range(0, len(positions), per_call):
             yield positions[start:start + per_call], rotations[start:start + per_call]
 
-    def _distances(self, positions: np.ndarray, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every ray of the views, and the distance to the first hit of those that may hit.
+    def _distances(self, positions: np.ndarray, rotations: np.ndarray,
+                   every: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rays of the views, and the distance to the first hit of those that may hit.
 
-        Returns rays (V * N, 6) float32 (origin, direction), cast (C,) int64 ascending indices
-        of the rays cast (those meeting the mesh's box), t_cast (C,) float64 their distance to
-        the plane of the triangle hit, inf for none.
+        Returns rays (V * N, 6) float32 (origin, direction; with ``every`` False only the rays
+        near the mesh's box are set), cast (C,) int64 ascending indices of the rays cast (those
+        meeting the box), t_cast (C,) float64 their distance to the plane of the triangle hit,
+        inf for none.
         """
         n_views, n_rays = len(positions), self.rays_per_scan
         rays = np.empty((n_views * n_rays, 6), dtype=np.float32)
         near_box = np.empty(n_views * n_rays, dtype=np.bool_)
-        _fill_rays(self._camera_rays, positions, rotations, self._box, rays, near_box)
+        _fill_rays(self._camera_rays, self.config.width, self._tangents, positions, rotations, self._box, every,
+                   rays, near_box)
         cast = np.flatnonzero(near_box)
         t_cast = np.empty(len(cast), dtype=np.float64)
         _plane_distances(rays, cast, self._triangles(rays[cast]), self._vertices, self._faces, t_cast)
@@ -180,36 +185,80 @@ def _enlarged_box(vertices: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _fill_rays(camera_rays, positions, rotations, box, rays, near_box):
-    """rays[v * N + i] = (origin, R_v^T @ camera_rays[i]) as float32, in a fixed order of
-    operations, and near_box: whether that ray meets ``box`` at t >= 0 (slab test in float64).
+def _image_window(position, rotation, box, tangents, width, height):
+    """(first row, last row, first column, last column) of the pixels whose rays may meet
+    ``box``: the projections of its eight corners, one pixel wider on every side; the whole
+    image when a corner is not in front of the camera (or the box is unbounded)."""
+    whole = (0, height - 1, 0, width - 1)
+    low_u, high_u, low_v, high_v = np.inf, -np.inf, np.inf, -np.inf
+    for corner in range(8):
+        camera = np.zeros(3)
+        for a in range(3):
+            offset = box[(corner >> a) & 1, a] - position[a]
+            if not np.isfinite(offset):
+                return whole
+            for b in range(3):
+                camera[b] += rotation[b, a] * offset
+        if camera[2] <= 1e-9:
+            return whole
+        u, v = camera[0] / camera[2] / tangents[0], camera[1] / camera[2] / tangents[1]
+        low_u, high_u, low_v, high_v = min(low_u, u), max(high_u, u), min(low_v, v), max(high_v, v)
+    # pixel centre c sits at ((c + 0.5) / size) * 2 - 1
+    first_col = max(int(math.floor((low_u + 1) / 2 * width - 0.5)) - 1, 0)
+    last_col = min(int(math.ceil((high_u + 1) / 2 * width - 0.5)) + 1, width - 1)
+    first_row = max(int(math.floor((low_v + 1) / 2 * height - 0.5)) - 1, 0)
+    last_row = min(int(math.ceil((high_v + 1) / 2 * height - 0.5)) + 1, height - 1)
+    return first_row, last_row, first_col, last_col
 
-    camera_rays (N, 3) float64, positions (V, 3) float64, rotations (V, 3, 3) float64 world to
-    camera, box (2, 3) float64 low and high corners; rays (V * N, 6) float32 and near_box
-    (V * N,) bool out.
+
+@numba.njit(cache=True)
+def _fill_rays(camera_rays, width, tangents, positions, rotations, box, every, rays, near_box):
+    """rays[v * N + i] = (origin, R_v^T @ camera_rays[i]) as float32, in a fixed order of
+    operations, and near_box: whether that ray meets ``box`` at t >= 0 (slab test in float64,
+    within the pixels ``_image_window`` leaves; the others cannot meet it).
+
+    camera_rays (N, 3) float64 row-major over an image ``width`` wide, tangents (2,) the tangents
+    of the half fields of view, positions (V, 3) float64, rotations (V, 3, 3) float64 world to
+    camera, box (2, 3) float64 low and high corners; ``every``: fill every ray, else only those
+    of the window (the others are left unset); rays (V * N, 6) float32 and near_box (V * N,)
+    bool out.
     """
     count = camera_rays.shape[0]
+    height = count // width
     for v in range(positions.shape[0]):
         r = rotations[v]
-        for i in range(count):
-            ray = v * count + i
-            cx, cy, cz = camera_rays[i, 0], camera_rays[i, 1], camera_rays[i, 2]
-            enter, leave = 0.0, np.inf
-            for a in range(3):
-                origin = np.float32(positions[v, a])
-                direction = np.float32((cx * r[0, a] + cy * r[1, a]) + cz * r[2, a])
-                rays[ray, a] = origin
-                rays[ray, 3 + a] = direction
-                if direction == 0.0:
-                    if origin < box[0, a] or origin > box[1, a]:
-                        enter = np.inf
+        first_row, last_row, first_col, last_col = _image_window(positions[v], r, box, tangents, width, height)
+        for row in range(height):
+            row_inside = first_row <= row <= last_row
+            if not (every or row_inside):
+                near_box[v * count + row * width:v * count + (row + 1) * width] = False
+                continue
+            for col in range(width):
+                i = row * width + col
+                ray = v * count + i
+                inside = row_inside and first_col <= col <= last_col
+                if not (every or inside):
+                    near_box[ray] = False
                     continue
-                inverse = 1.0 / np.float64(direction)
-                near = (box[0, a] - np.float64(origin)) * inverse
-                far = (box[1, a] - np.float64(origin)) * inverse
-                enter = max(enter, min(near, far))
-                leave = min(leave, max(near, far))
-            near_box[ray] = enter <= leave
+                cx, cy, cz = camera_rays[i, 0], camera_rays[i, 1], camera_rays[i, 2]
+                enter, leave = 0.0, np.inf
+                for a in range(3):
+                    origin = np.float32(positions[v, a])
+                    direction = np.float32((cx * r[0, a] + cy * r[1, a]) + cz * r[2, a])
+                    rays[ray, a] = origin
+                    rays[ray, 3 + a] = direction
+                    if not inside:
+                        continue
+                    if direction == 0.0:
+                        if origin < box[0, a] or origin > box[1, a]:
+                            enter = np.inf
+                        continue
+                    inverse = 1.0 / np.float64(direction)
+                    near = (box[0, a] - np.float64(origin)) * inverse
+                    far = (box[1, a] - np.float64(origin)) * inverse
+                    enter = max(enter, min(near, far))
+                    leave = min(leave, max(near, far))
+                near_box[ray] = inside and enter <= leave
 
 
 @numba.njit(cache=True)
