@@ -115,8 +115,11 @@ def main() -> None:
           f"baseline: the code at {args.baseline}")
     with tempfile.TemporaryDirectory(prefix="nbv-bench-") as tmp:
         tmp = Path(tmp)
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "--quiet", str(tmp / "baseline"),
-                        args.baseline], check=True)
+        added = subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "--quiet",
+                                str(tmp / "baseline"), args.baseline], capture_output=True, text=True)
+        if added.returncode != 0:
+            raise SystemExit(f"cannot check out {args.baseline} ({added.stderr.strip()}): pass --baseline with a "
+                             "revision of this clone (a shallow clone lacks the old ones: git fetch --unshallow)")
         try:
             before = _job(tmp / "baseline", args.meshes.resolve(), tmp / "before", args.limit, overrides)
             after = _job(ROOT, args.meshes.resolve(), tmp / "after", args.limit, overrides)

@@ -49,8 +49,12 @@ def _objects(config: SimConfig) -> list:
 
 def _baseline_module(revision: str, name: str, folder: Path):
     """nbvdata/<name>.py as it was at ``revision``, imported as ``baseline_<name>``."""
-    source = subprocess.run(["git", "-C", str(ROOT), "show", f"{revision}:nbvdata/{name}.py"], check=True,
-                            capture_output=True, text=True).stdout
+    shown = subprocess.run(["git", "-C", str(ROOT), "show", f"{revision}:nbvdata/{name}.py"],
+                           capture_output=True, text=True)
+    if shown.returncode != 0:
+        raise SystemExit(f"cannot read nbvdata/{name}.py at {revision} ({shown.stderr.strip()}): pass --baseline "
+                         "with a revision of this clone (a shallow clone lacks the old ones: git fetch --unshallow)")
+    source = shown.stdout
     path = folder / f"baseline_{name}.py"
     path.write_text(source)
     spec = importlib.util.spec_from_file_location(f"baseline_{name}", path)
