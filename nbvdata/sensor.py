@@ -32,8 +32,8 @@ from nbvdata._open3d import open3d as o3d
 from nbvdata.config import SensorConfig
 from nbvdata.views import Pose, ViewSet
 
-NO_HIT = np.uint32(2**32 - 1)
-_EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets  # Embree's primitive id of a ray that hits nothing
+NO_HIT = np.uint32(2**32 - 1)  # Embree's primitive id of a ray that hits nothing
+_EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets (MeshScanner(bounded=False))
 # Rays per open3d call; bounds the rays buffer to about 64 views x 25k rays x 24 B = 40 MB.
 _RAYS_PER_CALL = 64 * 176 * 144
 
