@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from nbvdata.config import GridConfig, SimConfig
-from nbvdata.sensor import Scan
+from nbvdata.sensor import Scan, half_line_meets_box
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
     # Try OpenMP before TBB: pip's TBB is often too old for numba, which then warns on every run.
@@ -226,21 +226,11 @@ _BESIDE = 1e-6
 @numba.njit(cache=True, inline="always")
 def _line_near_grid(ox, oy, oz, d0, d1, d2, resolution, first_key, n):
     """Whether the half-line origin + t * direction (t >= 0) passes within ``_BESIDE`` of the
-    grid's cube (slab test in float64)."""
+    grid's cube."""
     low = first_key * resolution - _BESIDE
     high = (first_key + n) * resolution + _BESIDE
-    enter, leave = 0.0, np.inf
-    for origin, direction in ((ox, d0), (oy, d1), (oz, d2)):
-        origin, direction = np.float64(origin), np.float64(direction)
-        if direction == 0.0:
-            if origin < low or origin > high:
-                return False
-            continue
-        near, far = (low - origin) / direction, (high - origin) / direction
-        if near > far:
-            near, far = far, near
-        enter, leave = max(enter, near), min(leave, far)
-    return enter <= leave
+    return half_line_meets_box((np.float64(ox), np.float64(oy), np.float64(oz)),
+                               (np.float64(d0), np.float64(d1), np.float64(d2)), (low, low, low), (high, high, high))
 
 
 @numba.njit(cache=True)
@@ -374,23 +364,14 @@ _NEAR_GRID = 1e-4
 @numba.njit(cache=True)
 def _rays_near_grid(origin, points, low, high):
     """(R,) int64 indices of the points whose ray from ``origin`` (the half-line through the
-    point) meets the cube [low, high]^3 (slab test in float64)."""
+    point) meets the cube [low, high]^3."""
+    start = (np.float64(origin[0]), np.float64(origin[1]), np.float64(origin[2]))
     near = np.empty(points.shape[0], dtype=np.int64)
     count = 0
     for i in range(points.shape[0]):
-        enter, leave = 0.0, np.inf
-        for a in range(3):
-            start = np.float64(origin[a])
-            direction = np.float64(points[i, a]) - start
-            if direction == 0.0:
-                if start < low or start > high:
-                    enter = np.inf
-                continue
-            inverse = 1.0 / direction
-            first, second = (low - start) * inverse, (high - start) * inverse
-            enter = max(enter, min(first, second))
-            leave = min(leave, max(first, second))
-        if enter <= leave:
+        direction = (np.float64(points[i, 0]) - start[0], np.float64(points[i, 1]) - start[1],
+                     np.float64(points[i, 2]) - start[2])
+        if half_line_meets_box(start, direction, (low, low, low), (high, high, high)):
             near[count] = i
             count += 1
     return near[:count]
@@ -407,8 +388,6 @@ def _mark_rays(origin, points, rays, max_range, resolution, first_key, free_mark
     inv_resolution = 1.0 / resolution
     ox, oy, oz = origin[0], origin[1], origin[2]
     count = rays.shape[0]
-    if count == 0:
-        return
     for pair in numba.prange((count + 1) // 2):
         a, b = rays[2 * pair], rays[min(2 * pair + 1, count - 1)]  # an odd count walks the last ray twice
         ex, ey, ez = _free_walk_end(ox, oy, oz, points[a, 0], points[a, 1], points[a, 2], max_range,

@@ -184,6 +184,22 @@ def _enlarged_box(vertices: np.ndarray) -> np.ndarray:
     return np.stack([low - margin, high + margin])
 
 
+@numba.njit(cache=True, inline="always")
+def half_line_meets_box(origin, direction, low, high):
+    """Whether origin + t * direction, t >= 0, meets the box [low, high] (slab test; each
+    argument a 3-tuple of float64; ``direction`` need not be a unit vector)."""
+    enter, leave = 0.0, np.inf
+    for a in range(3):
+        if direction[a] == 0.0:
+            if origin[a] < low[a] or origin[a] > high[a]:
+                return False
+            continue
+        inverse = 1.0 / direction[a]
+        near, far = (low[a] - origin[a]) * inverse, (high[a] - origin[a]) * inverse
+        enter, leave = max(enter, min(near, far)), min(leave, max(near, far))
+    return enter <= leave
+
+
 @numba.njit(cache=True)
 def _image_window(position, rotation, box, tangents, width, height):
     """(first row, last row, first column, last column) of the pixels whose rays may meet
@@ -225,6 +241,7 @@ def _fill_rays(camera_rays, width, tangents, positions, rotations, box, every, r
     """
     count = camera_rays.shape[0]
     height = count // width
+    low, high = (box[0, 0], box[0, 1], box[0, 2]), (box[1, 0], box[1, 1], box[1, 2])
     for v in range(positions.shape[0]):
         r = rotations[v]
         first_row, last_row, first_col, last_col = _image_window(positions[v], r, box, tangents, width, height)
@@ -241,24 +258,12 @@ def _fill_rays(camera_rays, width, tangents, positions, rotations, box, every, r
                     near_box[ray] = False
                     continue
                 cx, cy, cz = camera_rays[i, 0], camera_rays[i, 1], camera_rays[i, 2]
-                enter, leave = 0.0, np.inf
                 for a in range(3):
-                    origin = np.float32(positions[v, a])
-                    direction = np.float32((cx * r[0, a] + cy * r[1, a]) + cz * r[2, a])
-                    rays[ray, a] = origin
-                    rays[ray, 3 + a] = direction
-                    if not inside:
-                        continue
-                    if direction == 0.0:
-                        if origin < box[0, a] or origin > box[1, a]:
-                            enter = np.inf
-                        continue
-                    inverse = 1.0 / np.float64(direction)
-                    near = (box[0, a] - np.float64(origin)) * inverse
-                    far = (box[1, a] - np.float64(origin)) * inverse
-                    enter = max(enter, min(near, far))
-                    leave = min(leave, max(near, far))
-                near_box[ray] = inside and enter <= leave
+                    rays[ray, a] = positions[v, a]
+                    rays[ray, 3 + a] = (cx * r[0, a] + cy * r[1, a]) + cz * r[2, a]
+                near_box[ray] = inside and half_line_meets_box(
+                    (np.float64(rays[ray, 0]), np.float64(rays[ray, 1]), np.float64(rays[ray, 2])),
+                    (np.float64(rays[ray, 3]), np.float64(rays[ray, 4]), np.float64(rays[ray, 5])), low, high)
 
 
 @numba.njit(cache=True)
