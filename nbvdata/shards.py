@@ -135,8 +135,9 @@ class GridPalette:
                 raise ValueError("more than 65,536 distinct grid values in one shard")
             codes = np.arange(len(self._log_odds), len(self._log_odds) + len(new), dtype=np.uint16)
             self._log_odds += new.tolist()
-            order = np.argsort(np.concatenate([self._sorted, new]), kind="stable")
-            self._sorted = np.concatenate([self._sorted, new])[order]
+            values_known = np.concatenate([self._sorted, new])
+            order = np.argsort(values_known)
+            self._sorted = values_known[order]
             self._sorted_codes = np.concatenate([self._sorted_codes, codes])[order]
             slots = self._lookup(values)
         return self._sorted_codes[slots]
