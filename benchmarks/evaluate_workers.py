@@ -1,6 +1,6 @@
 """Benchmark: ``nbvtrain evaluate --workers 2`` against one worker, as a user runs it.
 
-The ten shared test meshes (or the built-in shapes when ../shared is absent), every planner that
+The ten shared test meshes (../shared/meshes/test, required), every planner that
 needs no checkpoint of yours (the released score and regression networks, information gain, the
 oracle, random), ``--starts 2 --seed 1``, default settings. Each job is the command itself in a
 fresh process (imports, starting the worker processes and building the planners included); the
@@ -38,10 +38,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--starts", type=int, default=2)
     args = parser.parse_args()
-    if TEST_MESHES.is_dir():
-        meshes = str(TEST_MESHES)
-    else:
+    if not TEST_MESHES.is_dir():
         raise SystemExit(f"{TEST_MESHES} absent: this benchmark needs the shared test meshes")
+    meshes = str(TEST_MESHES)
     print(f"nbvtrain evaluate --meshes {meshes} --planners {PLANNERS} --starts {args.starts} --seed 1, "
           f"1 against {args.workers} workers, each a fresh process")
     seconds: dict[int, list[float]] = {1: [], args.workers: []}

@@ -104,17 +104,20 @@ def main() -> None:
             times = {key: {"cast": [], "integrate": [], "total": []} for key in scanners}
             scans = []
             for view in rng.choice(len(views), args.scans, replace=False):
-                updates = {}
+                cast, updates = {}, {}
                 for key in ("before", "after"):
                     start = time.perf_counter()
-                    scan = scanners[key].scan(views[int(view)])
+                    cast[key] = scanners[key].scan(views[int(view)])
                     middle = time.perf_counter()
-                    updates[key] = grids[key].scan_update(scan, config.sensor.far)
+                    updates[key] = grids[key].scan_update(cast[key], config.sensor.far)
                     grids[key].apply(updates[key])
                     end = time.perf_counter()
                     for phase, seconds in (("cast", middle - start), ("integrate", end - middle), ("total", end - start)):
                         times[key][phase].append(seconds)
-                    scans.append(scan) if key == "after" else None
+                scans.append(cast["after"])
+                if not (np.array_equal(cast["before"].points, cast["after"].points)
+                        and np.array_equal(cast["before"].hit, cast["after"].hit)):
+                    raise SystemExit(f"{obj.source}: view {view} gives another scan than the baseline's")
                 if not (np.array_equal(updates["before"].free, updates["after"].free)
                         and np.array_equal(updates["before"].occupied, updates["after"].occupied)):
                     raise SystemExit(f"{obj.source}: view {view} gives another grid update than the baseline's")
