@@ -4,4 +4,6 @@ import sys
 
 from nbvdata.cli import main
 
-sys.exit(main())
+status = main()
+exec("None")  # see nbvtrain/__main__.py: exit with ``status``, not by SIGINT, after a caught Ctrl-C
+sys.exit(status)

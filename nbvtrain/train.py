@@ -23,7 +23,9 @@ import io
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -58,6 +60,41 @@ class Interrupted(Exception):
     def __init__(self, checkpoint: Path, epoch: int):
         super().__init__(f"interrupted in epoch {epoch + 1}; saved {checkpoint}")
         self.checkpoint, self.epoch = checkpoint, epoch
+
+
+class _StopRequested(Exception):
+    """Raised by the training loop at a batch boundary after a Ctrl-C."""
+
+
+class _StopOnCtrlC:
+    """While active, the first Ctrl-C (SIGINT) only sets ``requested``, and the training loop
+    stops at the next batch or epoch boundary; a second Ctrl-C raises KeyboardInterrupt at once.
+
+    A KeyboardInterrupt raised wherever the main thread happens to be can land inside
+    ``torch.save``, an import or a ``dataclass`` being built by ``exec``; CPython (3.10-3.13) then
+    remembers it as unhandled even after fit caught it, and ``python -m nbvtrain`` died by SIGINT
+    instead of exiting 130. Only the main thread can set a handler, and one that is not Python's
+    default (SIGINT ignored under ``nohup``, or a caller's own) is left alone.
+    """
+
+    def __enter__(self) -> "_StopOnCtrlC":
+        self.requested, self._previous = False, None
+        if (threading.current_thread() is threading.main_thread()
+                and signal.getsignal(signal.SIGINT) is signal.default_int_handler):
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame) -> None:
+        self.requested = True
+        signal.signal(signal.SIGINT, self._previous)
+
+    def check(self) -> None:
+        if self.requested:
+            raise _StopRequested
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
 
 
 @dataclass
@@ -229,58 +266,71 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
     if first > config.epochs:
         log(f"{out} already has {plural(len(history), 'epoch')} (epochs={config.epochs}): nothing to do")
     best = min((row["val_loss"] for row in history), default=math.inf)
-    epoch = first - 1
-    try:
-        for epoch in range(first, config.epochs + 1):
-            started = time.perf_counter()
-            model.train()
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate(config, epoch)
-            torch.manual_seed(_epoch_seed(config.seed, epoch))
-            rng = np.random.default_rng([config.seed, epoch])
-            order = rng.permutation(train_idx)
-            turns = rng.integers(0, 4, len(order)) if config.augment else np.zeros(len(order), dtype=np.int64)
-            batches = [(order[i:i + config.batch_size], turns[i:i + config.batch_size])
-                       for i in range(0, len(order), config.batch_size)]
-            bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
-            total = 0.0
-            # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
-            with contextlib.closing(_prefetch(lambda b: _batch(data, *b), batches)) as prepared:
-                for codes, targets, index, turned in prepared:
-                    grids = to_grids(codes, palette)
-                    if model.task == "scores":
-                        loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
-                    else:
-                        targets = torch.from_numpy(targets).to(device)
-                        output = model(grids)
-                        loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
-                    optimizer.zero_grad(set_to_none=True)
-                    loss.backward()
-                    optimizer.step()
-                    total += loss.item() * len(codes)
-                    if bar is not None:
-                        bar.update(len(codes))
-                        bar.set_postfix(loss=f"{loss.item():.4f}")
+    with _StopOnCtrlC() as stop:
+        try:
+            for epoch in range(first, config.epochs + 1):
+                started = time.perf_counter()
+                model.train()
+                for group in optimizer.param_groups:
+                    group["lr"] = learning_rate(config, epoch)
+                torch.manual_seed(_epoch_seed(config.seed, epoch))
+                rng = np.random.default_rng([config.seed, epoch])
+                order = rng.permutation(train_idx)
+                turns = rng.integers(0, 4, len(order)) if config.augment else np.zeros(len(order), dtype=np.int64)
+                batches = [(order[i:i + config.batch_size], turns[i:i + config.batch_size])
+                           for i in range(0, len(order), config.batch_size)]
+                bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
+                total = _train_epoch(model, optimizer, data, taken, batches, palette, classes, loss_fn, config,
+                                     device, bar, stop)
+                if bar is not None:
+                    bar.close()
+                train_seconds = time.perf_counter() - started
+                row = {"epoch": epoch, "train_loss": total / len(order),
+                       **_validate(model, data, taken, val_idx, palette, classes, loss_fn, config, device),
+                       "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds}
+                history.append(row)
+                _save(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
+                if row["val_loss"] < best:
+                    best = row["val_loss"]
+                    _save(out / "best.pt", model, optimizer, config, history, epoch, *_recorded(data))
+                _write_csv(out / "metrics.csv", history)
+                _plot(out / "curves.png", history, config.model)
+                log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
+                    f"mae {row['val_mae']:.4f}  angle {row['val_angle_deg']:.1f} deg  "
+                    f"gain ratio {format_ratio(row['val_gain_ratio'])}  {row['seconds']:.1f} s")
+                stop.check()
+        except (KeyboardInterrupt, _StopRequested):
+            # Keep the weights trained so far; the interrupted epoch is redone on --resume.
+            _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data))
+            raise Interrupted(out / "last.pt", len(history)) from None
+
+
+def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet,
+                 taken: np.ndarray | None, batches: list[tuple[np.ndarray, np.ndarray]], palette: torch.Tensor,
+                 classes: torch.Tensor, loss_fn: nn.Module, config: TrainConfig, device: torch.device, bar,
+                 stop: _StopOnCtrlC) -> float:
+    """One pass over ``batches`` of (indices, quarter turns); the summed loss (times batch sizes).
+    Stops at a batch boundary when ``stop`` saw a Ctrl-C."""
+    total = 0.0
+    # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
+    with contextlib.closing(_prefetch(lambda b: _batch(data, *b), batches)) as prepared:
+        for codes, targets, index, turned in prepared:
+            grids = to_grids(codes, palette)
+            if model.task == "scores":
+                loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
+            else:
+                targets = torch.from_numpy(targets).to(device)
+                output = model(grids)
+                loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * len(codes)
             if bar is not None:
-                bar.close()
-            train_seconds = time.perf_counter() - started
-            row = {"epoch": epoch, "train_loss": total / len(order),
-                   **_validate(model, data, taken, val_idx, palette, classes, loss_fn, config, device),
-                   "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds}
-            history.append(row)
-            _save(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
-            if row["val_loss"] < best:
-                best = row["val_loss"]
-                _save(out / "best.pt", model, optimizer, config, history, epoch, *_recorded(data))
-            _write_csv(out / "metrics.csv", history)
-            _plot(out / "curves.png", history, config.model)
-            log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
-                f"mae {row['val_mae']:.4f}  angle {row['val_angle_deg']:.1f} deg  "
-                f"gain ratio {format_ratio(row['val_gain_ratio'])}  {row['seconds']:.1f} s")
-    except KeyboardInterrupt:
-        # Keep the weights trained so far; the interrupted epoch is redone on --resume.
-        _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data))
-        raise Interrupted(out / "last.pt", len(history)) from None
+                bar.update(len(codes))
+                bar.set_postfix(loss=f"{loss.item():.4f}")
+            stop.check()
+    return total
 
 
 def learning_rate(config: TrainConfig, epoch: int) -> float:

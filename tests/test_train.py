@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_in
 from nbvtrain.cli import main
 from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
 from nbvtrain.predict import Predictor
+from nbvtrain.train import _StopOnCtrlC, _StopRequested
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]
@@ -115,7 +117,10 @@ def test_help_ends_in_whole_sentences(capsys):
     assert description.rstrip().endswith(".") and "closed-loop" in description, description
 
 
-def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
+# 0.1-0.2 s after the first last.pt, fit is importing matplotlib for curves.png: a KeyboardInterrupt
+# raised inside a dataclass built by exec() there made `python -m nbvtrain` die by SIGINT (-2).
+@pytest.mark.parametrize("delay", [0.1, 0.2, 0.6])
+def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path, delay):
     run = tmp_path / "run"
     # A runner started in the background (nohup ... &) passes SIGINT on as ignored, and Python then
     # never raises KeyboardInterrupt: give the child the default disposition, as a terminal would.
@@ -125,8 +130,8 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120
     while not (run / "last.pt").exists() and time.time() < deadline:
-        time.sleep(0.2)
-    time.sleep(0.5)
+        time.sleep(0.01)
+    time.sleep(delay)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130, err
@@ -135,6 +140,26 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path):
     assert done >= 1
     assert main(["fit", "--resume", "--epochs", str(done + 1), "--out", str(run), "--no-progress"]) == 0
     assert len((run / "metrics.csv").read_text().splitlines()) == done + 2
+
+
+def test_first_ctrl_c_asks_fit_to_stop_and_a_second_interrupts_at_once():
+    before = signal.getsignal(signal.SIGINT)
+    with _StopOnCtrlC() as stop:
+        stop.check()  # nothing asked yet
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.01)  # the handler runs between bytecodes of the main thread
+        assert stop.requested
+        with pytest.raises(_StopRequested):
+            stop.check()
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+    assert signal.getsignal(signal.SIGINT) is before
+    outcome = {}
+    thread = threading.Thread(target=lambda: outcome.update(handler=_StopOnCtrlC().__enter__()._previous))
+    thread.start()
+    thread.join()
+    assert outcome == {"handler": None}  # only the main thread may set one: leave SIGINT alone there
 
 
 def test_quarter_turns_rotate_grid_and_target_together(rng):
