@@ -143,7 +143,15 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path, delay):
 
 
 def test_first_ctrl_c_asks_fit_to_stop_and_a_second_interrupts_at_once():
-    before = signal.getsignal(signal.SIGINT)
+    # Python's own handler, as in a terminal (a runner started with & ignores SIGINT: fit leaves that alone)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _check_stop_on_ctrl_c()
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _check_stop_on_ctrl_c():
     with _StopOnCtrlC() as stop:
         stop.check()  # nothing asked yet
         os.kill(os.getpid(), signal.SIGINT)
@@ -154,7 +162,10 @@ def test_first_ctrl_c_asks_fit_to_stop_and_a_second_interrupts_at_once():
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(1)
-    assert signal.getsignal(signal.SIGINT) is before
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with _StopOnCtrlC() as stop:
+        assert stop._previous is None  # SIGINT ignored (nohup, a runner in the background): left ignored
     outcome = {}
     thread = threading.Thread(target=lambda: outcome.update(handler=_StopOnCtrlC().__enter__()._previous))
     thread.start()
