@@ -4,6 +4,8 @@ manifests' pictures belong to the site.
 - ``docs/index.md`` is replaced by ``README.md``, with its links into ``docs/`` made relative to
   this folder (``docs/training.md`` -> ``training.md``): the README is written once, and its links
   work both where the repository is browsed and on the site.
+- A page links the README as ``../README.md`` (right where the repository is browsed); here that
+  link is read as ``index.md``, the same text.
 - ``manifests/*.png`` are copied into the site under ``manifests/``. A page shows one with
   ``![...](../manifests/NAME.png)``, right where the repository is browsed; here that link is
   read as ``manifests/NAME.png``, the copy. README.md links ``manifests/NAME.png`` directly.
@@ -26,6 +28,7 @@ def on_files(files, config):
 def on_page_markdown(markdown, page, config, files):
     if page.file.src_uri == "index.md":
         return re.sub(r"\]\(docs/", "](", (ROOT / "README.md").read_text(encoding="utf-8"))
+    markdown = re.sub(r"\]\(\.\./README\.md", "](index.md", markdown)
     return re.sub(r"\]\(\.\./manifests/", "](manifests/", markdown)
 
 
