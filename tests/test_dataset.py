@@ -138,15 +138,15 @@ def test_a_run_missing_a_state_has_no_view_state():
         view_state(np.array([0, 0]), np.array([1, 2]), np.array([3, -1]), 10)
 
 
-def test_the_readme_example_trains(shards, tmp_path, monkeypatch):
-    """The README's 10 lines, on a published smoke version in place of builtin-shapes 1.2.0."""
-    readme = (ROOT / "README.md").read_text()
-    example = readme.split("### The dataset in your own training code", 1)[1].split("```python\n", 1)[1]
+def test_the_docs_example_trains(shards, tmp_path, monkeypatch):
+    """The 10 lines of docs/training.md, on a published smoke version in place of builtin-shapes 1.2.0."""
+    page = (ROOT / "docs" / "training.md").read_text()
+    example = page.split("## The dataset in your own training code", 1)[1].split("```python\n", 1)[1]
     example = example.split("```", 1)[0]
     assert len(example.strip().splitlines()) <= 11
     manifest = publish(shards, "builtin-shapes", "1.2.0", tmp_path / "manifests").path
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
-    exec(compile(example, "README.md", "exec"), namespace)
+    exec(compile(example, "docs/training.md", "exec"), namespace)
     assert manifest.exists() and np.isfinite(namespace["loss"].item())
     assert len(namespace["train"]) == len(open_verified(manifest).split("random")["train"])
