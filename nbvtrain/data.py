@@ -50,7 +50,7 @@ class LazyGrids:
             rows = indices[mine] - self.offsets[s]
             order = np.argsort(rows)
             unique_rows, inverse = np.unique(rows[order], return_inverse=True)
-            block = self.shards[s].file["grids"][unique_rows]  # h5py wants increasing rows
+            block = self.shards[s].codes(unique_rows)  # h5py wants increasing rows
             out[mine[order]] = self.luts[s][block[inverse]]
         return out
 
@@ -131,7 +131,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
         for path, lut, start, count in zip(paths, luts, offsets, counts):
             if count:
                 with Shard(path) as shard:
-                    codes[start:start + count] = lut[shard.file["grids"][()]]
+                    codes[start:start + count] = lut[shard.codes()]
         grids: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
     else:
         grids = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
