@@ -222,8 +222,11 @@ def cmd_release(args: argparse.Namespace) -> int:
     runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression)) if folder}
     if not runs:
         raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit)")
-    for path in release(runs, args.evaluation, args.out):
+    written, removed = release(runs, args.evaluation, args.out)
+    for path in written:
         print(f"nbvtrain release: wrote {path}")
+    for path in removed:
+        print(f"nbvtrain release: removed {path}, the model it replaces")
     return 0
 
 
