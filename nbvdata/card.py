@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.claims import write_atomic  # noqa: E402
-from nbvdata.config import SimConfig  # noqa: E402
+from nbvdata.config import SimConfig, from_dict  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
@@ -170,7 +170,7 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
     episode, oracle = config["episode"], config["oracle"]
     lines = [f"- Simulated by `nbvdata generate`: {plural(views['count'], 'candidate view')} on the "
              f"{views['layout']} of radius {views['radius']} m; a {sensor['width']}x{sensor['height']} range "
-             f"sensor (noise {sensor['noise_std']} m); a {grid['size']}^3 occupancy grid of {grid['extent']} m "
+             f"sensor (noise {sensor['noise_std']} m); {_grid_words(config)} "
              f"with OctoMap's update rule; {plural(episode['runs_per_mesh'], 'run')} per mesh from seeded random "
              f"start views, at most {plural(episode['max_scans'], 'scan')}, stopping when no view adds "
              f"{100 * episode['min_gain']:g} % of the observable surface; every state labelled by exhaustive "
@@ -188,6 +188,18 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
                  if command else
                  "- Made with the `nbvdata.generate` API from the meshes listed below and these settings.")
     return lines + [published]
+
+
+def _grid_words(config: dict) -> str:
+    """"a 32^3 occupancy grid of 0.32 m" (a fixed cube), or the cube fitted to the object with its
+    side (``SimConfig.scene_grid``): every mesh is scaled to the same largest side, so one size."""
+    grid = config["grid"]
+    if grid["extent"] is not None:
+        return f"a {grid['size']}^3 occupancy grid of {grid['extent']} m"
+    side = from_dict(SimConfig, config).scene_grid.extent
+    return (f"a {grid['size']}^3 occupancy grid fitted to the object (cube = largest side + half a voxel: "
+            f"{side:.4g} m, the same for every object, each scaled to a largest side of "
+            f"{config['mesh']['object_size']} m)")
 
 
 def _moves(episode: dict, oracle: dict, policies: set[str]) -> list[str]:

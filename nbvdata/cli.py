@@ -180,7 +180,7 @@ def _already_there(skipped: list) -> str:
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     """Print samples per mesh, coverage statistics and the spread of labels over the views; an
-    unreadable shard is an error, reported before anything is printed."""
+    unreadable or damaged shard is an error, reported before anything is printed."""
     from nbvdata.summary import format_summary, summarise
 
     paths = shard_files(args.shards)
@@ -189,12 +189,14 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         others = len(summary.problems) - 1
         raise ShardError(summary.problems[0] + (f" (and {plural(others, 'other unreadable shard')})"
                                                 if others else ""))
-    print(format_summary(summary, top=args.top))
-    if args.by_step:
+    if args.by_step:  # reads every grid: a damaged one fails before anything is printed
         from nbvdata.gridstats import by_step, format_by_step
 
+        steps = by_step(paths)
+    print(format_summary(summary, top=args.top))
+    if args.by_step:
         print("\nGrids by reconstruction step (means; span: median extent of the occupied voxels):")
-        print(format_by_step(by_step(paths)))
+        print(format_by_step(steps))
     return 0
 
 
@@ -306,11 +308,11 @@ def _show_sample(args: argparse.Namespace) -> int:
         i = args.index
         probabilities = shard.grids(i)
         positions = shard["view_positions"]
-        nbv, run, step = int(shard.file["nbv_index"][i]), int(shard.file["run"][i]), int(shard.file["step"][i])
+        nbv, run, step = (int(shard.read(name, i)) for name in ("nbv_index", "run", "step"))
         scored = shard.has("gains") and shard.has("overlaps")  # imported shards carry no scores
-        gains = shard.file["gains"][i] if scored else None
-        overlaps = shard.file["overlaps"][i] if scored else None
-        coverage = shard.file["coverage"][i] if shard.has("coverage") else None
+        gains = shard.read("gains", i) if scored else None
+        overlaps = shard.read("overlaps", i) if scored else None
+        coverage = shard.read("coverage", i) if shard.has("coverage") else None
         config = shard.info.config
         source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
     views = ViewSet(positions, look_at_rotations(positions))

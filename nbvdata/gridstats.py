@@ -78,7 +78,7 @@ def by_step(paths: list[Path], chunk: int = 512) -> list[StepRow]:
         with Shard(path) as shard:
             palette, steps = shard.palette, shard["step"]
             for start in range(0, len(shard), chunk):
-                stats = grid_statistics(shard.file["grids"][start:start + chunk], palette)
+                stats = grid_statistics(shard.codes(slice(start, start + chunk)), palette)
                 for name, values in stats.items():
                     columns[name].append(values)
             columns["step"].append(steps)

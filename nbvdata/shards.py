@@ -56,10 +56,13 @@ imported; absent in the first shards written, which mean "nbvdata generate"), ``
 {"sha256", "network"} of the checkpoint the runs followed; only with ``--policy``).
 
 A shard is written under a temporary name and renamed when complete: it is whole or absent.
+A shard damaged later (bytes overwritten or cut off) is read only through ``Shard``, whose every
+read turns HDF5's failure into one ``ShardError`` naming the file and the fix (``reading``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -102,6 +105,21 @@ MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 
 
 class ShardError(ValueError):
     """A shard that cannot be read; the message names the file and the fix."""
+
+
+@contextlib.contextmanager
+def reading(path: Path, what: str = "its data"):
+    """Reads of shard ``path`` inside the block: HDF5's failure to read bytes that were overwritten
+    or cut off (OSError: a chunk whose gzip/zlib stream or checksum fails, an address beyond the
+    end of the file; RuntimeError on some metadata) becomes one ``ShardError`` naming the shard,
+    ``what`` could not be read, and the fix."""
+    try:
+        yield
+    except (OSError, RuntimeError) as error:
+        reason = (str(error).strip().splitlines() or [type(error).__name__])[0][:100]
+        raise ShardError(f"{path}: damaged, {what} cannot be read (HDF5: {reason}): delete it and run nbvdata "
+                         "generate again, or restore it from its published version (nbvdata verify names every "
+                         "damaged shard)") from None
 
 
 class GridPalette:
@@ -206,7 +224,8 @@ class ShardInfo:
 
 
 class Shard:
-    """A shard opened for reading: ``len``, ``info``, ``grids(index)``, ``[name]`` for any dataset.
+    """A shard opened for reading: ``len``, ``info``, ``grids(index)``, ``codes(index)``,
+    ``read(name, index)`` and ``[name]`` for any dataset; every read goes through ``reading``.
 
     Use as a context manager, or call ``close``.
     """
@@ -221,7 +240,8 @@ class Shard:
             raise ShardError(f"{self.path}: not a readable HDF5 file (truncated or corrupt?): "
                              "delete it and run nbvdata generate again") from None
         try:
-            self.info = self._check()
+            with reading(self.path, "its attributes"):
+                self.info = self._check()
         except Exception:
             self.file.close()
             raise
@@ -261,15 +281,25 @@ class Shard:
 
     def __getitem__(self, name: str) -> np.ndarray:
         """The whole dataset ``name`` as an array (grids as palette codes; see ``grids``)."""
-        return self.file[name][()]
+        return self.read(name)
+
+    def read(self, name: str, index: int | slice | np.ndarray | tuple = ()) -> np.ndarray:
+        """Rows ``index`` of dataset ``name`` (default all; an index array must increase), the
+        one way shard data is read: ShardError naming the shard when its bytes are damaged."""
+        with reading(self.path, f"dataset {name}"):
+            return self.file[name][index]
 
     @property
     def palette(self) -> np.ndarray:
-        return self.file["grid_palette"][()]
+        return self.read("grid_palette")
+
+    def codes(self, index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
+        """(..., n, n, n) palette codes of the selected samples (``palette[codes]`` are the grids)."""
+        return self.read("grids", index)
 
     def grids(self, index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
         """(..., n, n, n) float32 occupancy probabilities of the selected samples."""
-        return self.palette[self.file["grids"][index]]
+        return self.palette[self.codes(index)]
 
     def content_digests(self) -> dict[str, str]:
         """sha256 (first 16 hex digits) of every dataset's values - raw C-order bytes with dtype
@@ -277,11 +307,7 @@ class Shard:
         equal content, whatever HDF5 library, chunking or compression wrote the file."""
         digests = {}
         for name in sorted(self.file):
-            try:
-                data = np.ascontiguousarray(self.file[name][()])
-            except OSError:
-                raise ShardError(f"{self.path}: dataset {name} cannot be read (truncated or corrupt?): "
-                                 "delete it and run nbvdata generate again") from None
+            data = np.ascontiguousarray(self.read(name))
             digest = hashlib.sha256(f"{data.dtype.str}{data.shape}".encode())
             digest.update(data.tobytes())
             digests[name] = digest.hexdigest()[:16]

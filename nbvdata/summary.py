@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.shards import MOVE_RULES, Shard, ShardError
+from nbvdata.shards import MOVE_RULES, Shard, ShardError, ShardInfo
 from nbvdata.text import plural
 
 
@@ -64,56 +64,73 @@ def dataset_name(source: str) -> str:
 
 
 def summarise(paths: list[Path]) -> Summary:
-    """Read the per-sample labels of every shard in ``paths`` (unreadable ones go to problems)."""
+    """Read the per-sample labels of every shard in ``paths`` (unreadable or damaged ones go to
+    problems and count nowhere else)."""
     summary = Summary()
     for path in paths:
         try:
-            shard = Shard(path)
+            with Shard(path) as shard:
+                labels = _labels(shard)
         except ShardError as error:
             summary.problems.append(str(error))
             continue
-        with shard:
-            info = shard.info
-            summary.shards += 1
-            summary.samples += len(shard)
-            summary.configs.add(str(shard.file.attrs["config"]))
-            summary.view_count = max(summary.view_count, len(shard.file["view_positions"]))
-            min_overlap = info.config.get("oracle", {}).get("min_overlap", 0.0)
-            for mesh in info.meshes:
-                summary.meshes.setdefault(mesh["id"], MeshSummary(mesh["source"])).shards += 1
-            if shard.has("mesh_id"):
-                mesh_ids = shard["mesh_id"].astype(str)
-            else:
-                dataset = dataset_name(info.source)
-                summary.meshes.setdefault(dataset, MeshSummary(dataset)).shards += 1
-                mesh_ids = np.full(len(shard), dataset)
-            if not len(shard):
-                continue
-            runs, steps, nbv = shard["run"], shard["step"], shard["nbv_index"]
-            coverage = shard["coverage"] if shard.has("coverage") else None
-            summary.nbv_counts.update(nbv.tolist())
-            if "policy" in shard.file.attrs:
-                summary.policies.add(str(shard.file.attrs["policy"]))
-            if shard.has("move"):
-                move, moved = shard["move"], shard["move"] >= 0
-                summary.moves.update(move[moved].tolist())
-                summary.off_label += int((shard["next_view"][moved] != nbv[moved]).sum())
-            if shard.has("gains"):
-                summary.best_gain.append(shard["gains"][np.arange(len(nbv)), nbv])
-            if shard.has("overlaps"):
-                summary.valid_share.append((shard["overlaps"] >= min_overlap).mean(axis=1))
-            runs_of = defaultdict(list)
-            for i, (mesh_id, run) in enumerate(zip(mesh_ids, runs)):
-                runs_of[(mesh_id, int(run))].append(i)
-            for (mesh_id, run), rows in runs_of.items():
-                entry = summary.meshes.setdefault(mesh_id, MeshSummary(mesh_id[:12]))
-                rows = sorted(rows, key=lambda r: steps[r])
-                entry.samples += len(rows)
-                entry.last_steps[run] = max(entry.last_steps.get(run, 0), int(steps[rows[-1]]))
-                if coverage is not None:
-                    entry.first_coverage.append(float(coverage[rows[0], 0]))
-                    entry.final_coverage.append(float(coverage[rows[-1], 1]))
+        _add(summary, **labels)
     return summary
+
+
+LABELS = ("view_positions", "run", "step", "nbv_index", "mesh_id", "coverage", "move", "next_view", "gains",
+          "overlaps")
+
+
+def _labels(shard: Shard) -> dict:
+    """What ``summarise`` counts of one shard, read whole first (None for a dataset it lacks)."""
+    attrs = shard.file.attrs
+    return {"info": shard.info, "config": str(attrs["config"]), "policy": attrs.get("policy"),
+            **{name: shard[name] if shard.has(name) else None for name in LABELS}}
+
+
+def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, view_positions: np.ndarray,
+         run: np.ndarray, step: np.ndarray, nbv_index: np.ndarray, mesh_id: np.ndarray | None,
+         coverage: np.ndarray | None, move: np.ndarray | None, next_view: np.ndarray | None,
+         gains: np.ndarray | None, overlaps: np.ndarray | None) -> None:
+    """Count one shard's labels (``_labels``) into ``summary``."""
+    summary.shards += 1
+    summary.samples += info.samples
+    summary.configs.add(config)
+    summary.view_count = max(summary.view_count, len(view_positions))
+    min_overlap = info.config.get("oracle", {}).get("min_overlap", 0.0)
+    for mesh in info.meshes:
+        summary.meshes.setdefault(mesh["id"], MeshSummary(mesh["source"])).shards += 1
+    if mesh_id is not None:
+        mesh_ids = mesh_id.astype(str)
+    else:
+        dataset = dataset_name(info.source)
+        summary.meshes.setdefault(dataset, MeshSummary(dataset)).shards += 1
+        mesh_ids = np.full(info.samples, dataset)
+    if not info.samples:
+        return
+    summary.nbv_counts.update(nbv_index.tolist())
+    if policy is not None:
+        summary.policies.add(str(policy))
+    if move is not None:
+        moved = move >= 0
+        summary.moves.update(move[moved].tolist())
+        summary.off_label += int((next_view[moved] != nbv_index[moved]).sum())
+    if gains is not None:
+        summary.best_gain.append(gains[np.arange(len(nbv_index)), nbv_index])
+    if overlaps is not None:
+        summary.valid_share.append((overlaps >= min_overlap).mean(axis=1))
+    runs_of = defaultdict(list)
+    for i, (mesh, number) in enumerate(zip(mesh_ids, run)):
+        runs_of[(mesh, int(number))].append(i)
+    for (mesh, number), rows in runs_of.items():
+        entry = summary.meshes.setdefault(mesh, MeshSummary(mesh[:12]))
+        rows = sorted(rows, key=lambda r: step[r])
+        entry.samples += len(rows)
+        entry.last_steps[number] = max(entry.last_steps.get(number, 0), int(step[rows[-1]]))
+        if coverage is not None:
+            entry.first_coverage.append(float(coverage[rows[0], 0]))
+            entry.final_coverage.append(float(coverage[rows[-1], 1]))
 
 
 def format_summary(summary: Summary, top: int = 10) -> str:

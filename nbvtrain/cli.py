@@ -30,7 +30,8 @@ INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torc
 FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
              "lr_schedule": "lr_schedule", "score_loss": "score_loss", "dropout": "dropout",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
-             "augment": "augment", "seed": "seed", "device": "device", "threads": "threads"}
+             "augment": "augment", "seed": "seed", "device": "device", "threads": "threads",
+             "mixed_scenes": "mixed_scenes"}
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -148,7 +149,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     from nbvtrain.data import load_shards, split_indices
     from nbvtrain.metrics import format_ratio
 
-    data = load_shards(shard_files(args.shards), args.memory_limit_gb)
+    data = load_shards(shard_files(args.shards), args.memory_limit_gb, args.mixed_scenes)
     try:
         train_idx, val_idx, split = split_indices(data, args.split, args.val_fraction, args.seed)
         print(f"{len(train_idx)} training and {plural(len(val_idx), 'validation sample')} ({split['kind']} split, "
@@ -221,8 +222,11 @@ def cmd_release(args: argparse.Namespace) -> int:
     runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression)) if folder}
     if not runs:
         raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit)")
-    for path in release(runs, args.evaluation, args.out):
+    written, removed = release(runs, args.evaluation, args.out)
+    for path in written:
         print(f"nbvtrain release: wrote {path}")
+    for path in removed:
+        print(f"nbvtrain release: removed {path}, the model it replaces")
     return 0
 
 
@@ -261,6 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--seed", type=int, help="seed of split, weights, batches, dropout (default 0)")
     fit.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default auto")
     fit.add_argument("--threads", type=int, help="torch CPU threads (default: one per core)")
+    fit.add_argument("--mixed-scenes", action="store_true", default=None, help="train on shards made in different "
+                     "scenes (other views, sensor, grid, ...; refused by default): the checkpoint records a mixed "
+                     "scene")
     fit.add_argument("--out", type=Path, help="run folder (default runs/MODEL)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     fit.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -317,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     baselines.add_argument("--val-fraction", type=float, default=0.2)
     baselines.add_argument("--seed", type=int, default=0)
     baselines.add_argument("--memory-limit-gb", type=float, default=8.0)
+    baselines.add_argument("--mixed-scenes", action="store_true", help="score shards made in different scenes "
+                           "together (refused by default, as by fit)")
     baselines.set_defaults(func=cmd_baselines)
 
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")

@@ -49,6 +49,10 @@ class TrainConfig:
     """Torch CPU threads; 0 = torch's default (one per core)."""
     memory_limit_gb: float = 8.0
     """Load the grids into memory when they take at most this much, else read them lazily."""
+    mixed_scenes: bool = False
+    """Train on shards made in different scenes (settings that differ beyond ``episode``: views,
+    sensor, grid, ...); refused by default. The checkpoint then records the scene as mixed, with
+    every value its shards had (``nbvtrain.scene``)."""
 
     def __post_init__(self) -> None:
         _check(self.model in MODELS, f"model={self.model!r}: choose one of {', '.join(MODELS)}")

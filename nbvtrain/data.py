@@ -16,7 +16,7 @@ import torch
 from nbvdata.manifest import Published, mesh_split, random_split
 from nbvdata.shards import Shard, ShardError
 from nbvdata.text import plural
-from nbvtrain.scene import scene_record_of
+from nbvtrain.scene import mixed_scene_record, scene_difference, scene_record_of
 
 
 class InMemoryGrids:
@@ -50,7 +50,7 @@ class LazyGrids:
             rows = indices[mine] - self.offsets[s]
             order = np.argsort(rows)
             unique_rows, inverse = np.unique(rows[order], return_inverse=True)
-            block = self.shards[s].file["grids"][unique_rows]  # h5py wants increasing rows
+            block = self.shards[s].codes(unique_rows)  # h5py wants increasing rows
             out[mine[order]] = self.luts[s][block[inverse]]
         return out
 
@@ -72,7 +72,8 @@ class ShardSet:
     view_units   : (V, 3) float64 unit candidate positions (None with gains)
     view_radius  : metres from the object centre to the views
     scene        : the grid and view settings the shards were made with (``nbvtrain.scene.scene_record``),
-                   or None when a shard records none (imported data) or they differ
+                   None when a shard records none (imported data), ``mixed_scene_record`` when they
+                   were made in several scenes (``load_shards(mixed_scenes=True)``)
     """
 
     paths: list[Path]
@@ -94,8 +95,10 @@ class ShardSet:
         self.grids.close()
 
 
-def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
-    """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard."""
+def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: bool = False) -> ShardSet:
+    """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard, or
+    two shards made in different scenes (``nbvtrain.scene.scene_difference``) unless
+    ``mixed_scenes``."""
     if not paths:
         raise ShardError("no shards given: pass .h5 files or folders written by nbvdata generate")
     infos = []
@@ -109,8 +112,17 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
                 "gains": shard["gains"] if shard.has("gains") else None,
                 "valid": _valid_views(shard),
                 "views": shard["view_positions"],
-                "scene": scene_record_of(shard.info.config),
+                "settings": shard.info.config, "scene": scene_record_of(shard.info.config),
             })
+    scenes_differ = False
+    for path, info in zip(paths[1:], infos[1:]):
+        difference = scene_difference(infos[0]["settings"], info["settings"])
+        if difference is not None and not mixed_scenes:
+            key, first, other = difference
+            raise ShardError(f"{path} was made in another scene than {paths[0]} ({key} {other!r}, not {first!r}): "
+                             "train on the shards of one scene, or pass --mixed-scenes (mixed_scenes=True) to mix "
+                             "them knowingly")
+        scenes_differ |= difference is not None
     sizes = {info["size"] for info in infos if info["samples"]}
     if len(sizes) > 1:
         raise ShardError(f"the shards hold grids of different sizes {sorted(sizes)}: train on one kind at a time")
@@ -131,7 +143,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
         for path, lut, start, count in zip(paths, luts, offsets, counts):
             if count:
                 with Shard(path) as shard:
-                    codes[start:start + count] = lut[shard.file["grids"][()]]
+                    codes[start:start + count] = lut[shard.codes()]
         grids: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
     else:
         grids = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
@@ -149,7 +161,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
         valid=np.concatenate([info["valid"] for info in infos]) if has_gains else None,
         view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
         view_radius=radius, grid_size=size,
-        scene=infos[0]["scene"] if all(info["scene"] == infos[0]["scene"] for info in infos) else None)
+        scene=mixed_scene_record([info["scene"] for info in infos]) if scenes_differ else infos[0]["scene"])
 
 
 def _valid_views(shard: Shard) -> np.ndarray | None:

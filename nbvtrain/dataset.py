@@ -37,11 +37,12 @@ class NBVDataset(torch.utils.data.Dataset):
     With a manifest, ``part`` ("train", "val", "test"; None = every sample) of its ``split``
     ("random" or "mesh") selects the samples, as ``nbvtrain fit MANIFEST --split ...`` trains and
     validates on them; its shards are verified first (under ``root``, default the recorded one).
+    Shards made in different scenes are refused unless ``mixed_scenes`` (as ``nbvtrain fit``).
     """
 
     def __init__(self, source: str | Path | Sequence[str | Path], part: str | None = None, split: str = "random",
                  root: str | Path | None = None, scores: bool = False, view_state: bool = False,
-                 memory_limit_gb: float = 8.0):
+                 memory_limit_gb: float = 8.0, mixed_scenes: bool = False):
         sources = [Path(source)] if isinstance(source, (str, Path)) else [Path(s) for s in source]
         published: Published | None = None
         if len(sources) == 1 and sources[0].suffix == ".json":
@@ -52,7 +53,7 @@ class NBVDataset(torch.utils.data.Dataset):
                 raise ShardError(f"part={part!r} needs a published manifest (NAME-X.Y.Z.json); on shards, take "
                                  "indices from nbvtrain.data.split_indices and wrap in torch.utils.data.Subset")
             paths = shard_files(sources)
-        data = load_shards(paths, memory_limit_gb)
+        data = load_shards(paths, memory_limit_gb, mixed_scenes)
         self.paths, self.palette, self.targets = list(paths), data.palette, data.targets
         if part is None:
             self.indices = np.arange(len(data))

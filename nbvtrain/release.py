@@ -4,12 +4,13 @@ They ship inside the package (``nbvtrain/released/``, package data), so a plain 
 has them: the candidate-score network (``scores``: the default of ``nbvtrain evaluate``,
 ``predict`` and ``plan``) and the paper's regression network trained on the same data with the
 same budget (``regression``, for comparison). ``MODEL_CARD.md`` beside them says how they were
-made and what they score; ``reference.json`` holds each one's answer for ``reference_grid()``,
-which the tests reproduce from the installed files.
+made and what they score; ``reference.json`` names each task's checkpoint file and holds its
+answer for ``reference_grid()``, which the tests reproduce from the installed files.
 
-``nbvtrain release SCORE_RUN REGRESSION_RUN --evaluation DIR`` writes them from two run folders
+``nbvtrain release --scores RUN --regression RUN --evaluation DIR`` writes them from run folders
 of ``nbvtrain fit``: the best epoch's weights as float16 (half the bytes; they load as float32),
-without the optimiser state.
+without the optimiser state, each named by its network (``nbvscore-fc3.pt``), into the package's
+folder or ``--out``; the card names the files relative to itself.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 
 from nbvdata.config import ConfigError
 
-RELEASED = {"scores": "nbvscore-fc3.pt", "regression": "nbvnet-4-3.pt"}  # task -> file in nbvtrain/released/
+TASKS = ("scores", "regression")
 CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
 KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
 
@@ -37,9 +38,20 @@ def released_folder() -> Path:
     return Path(str(resources.files("nbvtrain") / "released"))
 
 
+def released_files(folder: Path | None = None) -> dict[str, str]:
+    """Task -> checkpoint file name of the models released in ``folder`` (default the package's),
+    as its reference.json records them (a bare file name beside it; anything else is ignored)."""
+    try:
+        recorded = json.loads(((folder or released_folder()) / REFERENCE).read_text())
+    except (OSError, ValueError):
+        return {}
+    files = {task: entry.get("checkpoint") for task, entry in recorded.items() if isinstance(entry, dict)}
+    return {task: name for task, name in files.items() if isinstance(name, str) and name == Path(name).name}
+
+
 def released_checkpoint(task: str = "scores") -> Path:
     """The released checkpoint of ``task`` (scores or regression); ``NoReleasedModel`` otherwise."""
-    name = RELEASED.get(task)
+    name = released_files().get(task)
     path = released_folder() / name if name else None
     if path is None or not path.is_file():
         raise NoReleasedModel(f"no {task} model is released with this package: pass a checkpoint written by nbvtrain "
@@ -73,16 +85,23 @@ def reference_answer(checkpoint: Path) -> dict:
     return answer
 
 
-def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> list[Path]:
-    """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit), the
-    reference answers and the model card (with the summary.md tables of ``evaluations``, output
-    folders of nbvtrain evaluate) into ``out``."""
+def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> tuple[list[Path], list[Path]]:
+    """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit), each named
+    by its network, the reference answers and the model card (with the summary.md tables of
+    ``evaluations``, output folders of nbvtrain evaluate) into ``out``. A task released before
+    into ``out`` under another network's name is replaced: (files written, files removed)."""
     import torch
 
     from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
 
     out.mkdir(parents=True, exist_ok=True)
-    written, sections, answers = [], [], {}
+    before = released_files(out)
+    try:  # a task released into ``out`` before and not now stays released (named in reference.json)
+        answers = {task: entry for task, entry in json.loads((out / REFERENCE).read_text()).items()
+                   if task in before and task not in runs and (out / before[task]).is_file()}
+    except (OSError, ValueError):
+        answers = {}
+    written, sections = [], []
     for task, run in runs.items():
         state = load_checkpoint(run / "best.pt", f"train one with nbvtrain fit --out {run}")
         if state.get("task") != task:
@@ -91,15 +110,20 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> list[P
         slim["state_dict"] = {key: value.half() if value.is_floating_point() else value
                               for key, value in state["state_dict"].items()}
         slim["released_from"] = str(run)
-        path = out / RELEASED[task]
+        path = out / f"{state['model']}.pt"
         save_checkpoint(path, slim)
-        answers[task] = reference_answer(path)
+        answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
         sections.append(_card_section(task, run, state, path))
     (out / REFERENCE).write_text(json.dumps(answers, indent=1) + "\n")
     card = out / CARD
-    card.write_text(_card(sections, answers, evaluations, torch.__version__))
-    return written + [out / REFERENCE, card]
+    card.write_text(_card(sections, answers, evaluations, torch.__version__,
+                          packaged=out.resolve() == released_folder().resolve()))
+    kept = {path.name for path in written}
+    superseded = [out / before[task] for task in runs if task in before and before[task] not in kept]
+    for path in superseded:
+        path.unlink(missing_ok=True)
+    return written + [out / REFERENCE, card], superseded
 
 
 def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
@@ -115,7 +139,7 @@ def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
     keys = ("model", "epochs", "batch_size", "lr", "lr_schedule", "dropout_from", "dropout", "augment",
             *(("score_loss",) if task == "scores" else ()), "split", "seed")
     settings = ", ".join(f"{key} {config[key]}" for key in keys if key in config)
-    lines = [f"## {task}: {state['model']} (`nbvtrain/released/{path.name}`, {path.stat().st_size / 2 ** 20:.1f} MiB)",
+    lines = [f"## {task}: {state['model']} (`{path.name}` beside this card, {path.stat().st_size / 2 ** 20:.1f} MiB)",
              ""]
     if manifest:
         lines.append(f"- Data: {manifest['name']} {manifest['version']} (manifest sha256 {manifest['sha256']}), "
@@ -152,11 +176,15 @@ def _cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
-def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str) -> str:
+def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str, packaged: bool) -> str:
+    """The model card; ``packaged``: written into the package's folder, whose models commands use
+    by default (elsewhere, they are used with --checkpoint)."""
+    use = ("the candidate-score network `nbvtrain evaluate`, `predict` and `plan` use by default" if packaged else
+           "the candidate-score network (use a file here with `--checkpoint`, or `--score-checkpoint` for "
+           "`nbvtrain evaluate`)")
     lines = ["# Model card: the released next-best-view networks", "",
-             "Two networks trained on the same published dataset with the same CPU budget: the candidate-score "
-             "network `nbvtrain evaluate`, `predict` and `plan` use by default, and the paper's regression network "
-             "for comparison. Weights are float16 (loaded as float32).", "",
+             f"Two networks trained on the same published dataset with the same CPU budget: {use}, and the paper's "
+             "regression network for comparison. Weights are float16 (loaded as float32).", "",
              f"Machine: {_cpu_name()}, {os.cpu_count()} cores, no GPU; "
              f"torch {torch_version} (CPU), Python {platform.python_version()}.", ""]
     lines += sections

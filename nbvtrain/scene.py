@@ -4,13 +4,21 @@ A checkpoint records it (``scene_record``) so that a run with other settings ref
 line (``check_scene``) instead of feeding it grids of another voxel size or scoring views it
 never saw. Checkpoints of imported data (the authors' shards record no settings) carry none and
 are not checked.
+
+Training data is one scene: shards whose recorded settings differ anywhere but ``episode`` (how
+many runs, how they move: rounds of one scene may differ there) are refused together
+(``scene_difference``), unless mixing them is asked for (``nbvtrain fit --mixed-scenes``). A
+network trained on mixed scenes records ``mixed_scene_record``: ``mixed`` true and, for each
+key, the list of values its shards had; ``check_scene`` then accepts a run whose value is any
+of them.
 """
 
 from __future__ import annotations
 
-from nbvdata.config import ConfigError, SimConfig, from_dict
+from nbvdata.config import ConfigError, SimConfig, from_dict, to_dict
 
 SCENE_KEYS = ("grid_size", "grid_extent", "views_count", "views_radius", "views_layout")
+NOT_SCENE = ("episode",)  # sections of a shard's settings that shards of one scene may differ in
 
 
 class SceneMismatch(ConfigError):
@@ -35,14 +43,56 @@ def scene_record_of(settings: dict | None) -> dict | None:
         return None
 
 
+def mixed_scene_record(records: list[dict | None]) -> dict:
+    """The scene of a network trained on shards of several scenes: ``mixed`` and, per key of
+    ``scene_record``, the sorted distinct values of the shards that record one (None: unknown)."""
+    known = [record for record in records if record]
+    return {"mixed": True, **({key: sorted({record[key] for record in known}) for key in SCENE_KEYS} if known else {})}
+
+
+def scene_settings(settings: dict | None) -> dict[str, object]:
+    """A shard's recorded settings (its ``config``) as {"section.key": value}, all but the
+    ``NOT_SCENE`` sections; defaults filled in where they are a ``SimConfig``'s (so a setting
+    added later compares equal to its default), as recorded otherwise (imported data)."""
+    if not isinstance(settings, dict):
+        return {}
+    try:
+        settings = to_dict(from_dict(SimConfig, settings))
+    except ConfigError:
+        pass
+    flat = {}
+    for section, values in settings.items():
+        if section in NOT_SCENE:
+            continue
+        if isinstance(values, dict):
+            flat.update((f"{section}.{key}", value) for key, value in values.items())
+        else:
+            flat[section] = values
+    return flat
+
+
+def scene_difference(settings: dict | None, other: dict | None) -> tuple[str, object, object] | None:
+    """(key, value, other value) of the first setting in which two shards' recorded settings
+    (``scene_settings``; a key one lacks: None) make other scenes, or None when they are one."""
+    first, second = scene_settings(settings), scene_settings(other)
+    for key in [*first, *(key for key in second if key not in first)]:
+        if first.get(key) != second.get(key):
+            return key, first.get(key), second.get(key)
+    return None
+
+
 def check_scene(recorded: dict | None, config: SimConfig, checkpoint: object) -> None:
     """SceneMismatch when ``recorded`` (a checkpoint's scene, or None = unknown: accepted)
-    differs from ``config``'s."""
+    differs from ``config``'s; a mixed scene (``mixed_scene_record``) accepts any of its values."""
     if not recorded:
         return
     current = scene_record(config)
-    differ = [f"{key} {recorded.get(key)!r} (the run has {current[key]!r})" for key in SCENE_KEYS
-              if recorded.get(key) != current[key]]
+    if recorded.get("mixed"):
+        differ = [f"{key} {' or '.join(map(repr, recorded[key]))} in its mixed scenes (the run has {current[key]!r})"
+                  for key in SCENE_KEYS if key in recorded and current[key] not in recorded[key]]
+    else:
+        differ = [f"{key} {recorded.get(key)!r} (the run has {current[key]!r})" for key in SCENE_KEYS
+                  if recorded.get(key) != current[key]]
     if differ:
         raise SceneMismatch(f"{checkpoint}: trained with other settings than this run's: {'; '.join(differ)}: pass "
                             "a checkpoint trained on shards made with these settings, or run with the checkpoint's "

@@ -142,7 +142,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
-    data = load_shards(shards, config.memory_limit_gb)
+    data = load_shards(shards, config.memory_limit_gb, config.mixed_scenes)
     try:
         taken = _view_states(data, config.model)
         if resumed is None:

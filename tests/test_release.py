@@ -14,19 +14,23 @@ import numpy as np
 import pytest
 import torch
 
-from nbvtrain.release import CARD, REFERENCE, RELEASED, reference_answer, reference_grid, released_checkpoint
+from nbvtrain.release import (CARD, REFERENCE, TASKS, reference_answer, reference_grid, released_checkpoint,
+                              released_files)
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDER = ROOT / "nbvtrain" / "released"
 
 
 def test_the_released_files_are_in_the_package_and_small():
-    files = [FOLDER / name for name in RELEASED.values()]
+    released = released_files()
+    assert sorted(released) == sorted(TASKS), "run nbvtrain release (README: The released models)"
+    files = [FOLDER / name for name in released.values()]
     assert all(path.is_file() for path in files), "run nbvtrain release (README: The released models)"
+    assert sorted(FOLDER.glob("*.pt")) == sorted(files)  # nothing else ships
     assert sum(path.stat().st_size for path in files) <= 25 * 10 ** 6
-    for task, name in RELEASED.items():
+    for task, name in released.items():
         state = torch.load(FOLDER / name, weights_only=True)
-        assert state["task"] == task and "optimizer" not in state
+        assert state["task"] == task and "optimizer" not in state and name == f"{state['model']}.pt"
         assert all(value.dtype == torch.float16 for value in state["state_dict"].values() if value.is_floating_point())
         assert state["scene"]["views_count"] == 500 and state["scene"]["grid_size"] == 32  # the default scene
 
@@ -43,7 +47,7 @@ def test_the_card_names_the_data_and_the_figures():
 
 def test_the_released_weights_reproduce_the_recorded_answers():
     recorded = json.loads((FOLDER / REFERENCE).read_text())
-    for task in RELEASED:
+    for task in TASKS:
         answer = reference_answer(released_checkpoint(task))
         np.testing.assert_allclose(answer["direction"], recorded[task]["direction"], atol=1e-4)
         if task == "scores":
@@ -60,7 +64,7 @@ def test_an_installed_package_loads_them(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     code = ("import json, sys, nbvtrain.release as r\n"
             "assert r.__file__.startswith(sys.argv[1]), r.__file__\n"
-            "print(json.dumps({t: r.reference_answer(r.released_checkpoint(t)) for t in r.RELEASED}))\n")
+            "print(json.dumps({t: r.reference_answer(r.released_checkpoint(t)) for t in r.TASKS}))\n")
     done = subprocess.run([sys.executable, "-c", code, str(target)], capture_output=True, text=True, timeout=300,
                           cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr[-2000:]
@@ -75,5 +79,37 @@ def test_commands_use_the_released_model_without_a_checkpoint(tmp_path, capsys):
     np.save(tmp_path / "grid.npy", reference_grid())
     assert main(["predict", str(tmp_path / "grid.npy")]) == 0
     answer = json.loads(capsys.readouterr().out)
-    assert answer["checkpoint"].endswith(RELEASED["scores"]) and answer["scanned"] == []
+    assert Path(answer["checkpoint"]).name == released_files()["scores"] and answer["scanned"] == []
     assert answer["view"] == json.loads((FOLDER / REFERENCE).read_text())["scores"]["view"]
+
+
+def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_path, capsys):
+    """nbvtrain release --out DIR: each checkpoint is named by its own network (not the shipped
+    model's name), the card names it relative to itself, reference.json says which file is which
+    task's, and a later release replaces a task's model and keeps the other task's."""
+    from nbvdata.cli import main as nbvdata
+    from nbvtrain.cli import main as nbvtrain
+
+    shards = tmp_path / "shards"
+    assert nbvdata(["generate", "--config", str(ROOT / "configs" / "smoke.yaml"), "--runs-per-mesh", "1",
+                    "--out", str(shards), "--no-progress"]) == 0
+    runs = {model: tmp_path / model for model in ("nbvnet-3-3", "nbvnet-3-5", "nbvscore-3")}
+    for model, run in runs.items():
+        assert nbvtrain(["fit", str(shards), "--epochs", "1", "--model", model, "--batch-size", "8", "--threads", "1",
+                         "--no-progress", "--out", str(run)]) == 0
+    out = tmp_path / "release"
+    assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-3"]), "--out", str(out)]) == 0
+    assert sorted(path.name for path in out.iterdir()) == [CARD, "nbvnet-3-3.pt", REFERENCE]
+    assert released_files(out) == {"regression": "nbvnet-3-3.pt"}
+    card = (out / CARD).read_text()
+    assert "## regression: nbvnet-3-3 (`nbvnet-3-3.pt` beside this card" in card
+    assert "nbvtrain/released" not in card and "use by default" not in card  # not the package's models
+    recorded = json.loads((out / REFERENCE).read_text())["regression"]
+    assert reference_answer(out / "nbvnet-3-3.pt") | {"checkpoint": "nbvnet-3-3.pt"} == recorded
+
+    capsys.readouterr()
+    assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-5"]), "--out", str(out)]) == 0
+    assert f"removed {out / 'nbvnet-3-3.pt'}" in capsys.readouterr().out
+    assert nbvtrain(["release", "--scores", str(runs["nbvscore-3"]), "--out", str(out)]) == 0
+    assert released_files(out) == {"regression": "nbvnet-3-5.pt", "scores": "nbvscore-3.pt"}
+    assert sorted(path.name for path in out.glob("*.pt")) == ["nbvnet-3-5.pt", "nbvscore-3.pt"]
