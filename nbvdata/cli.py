@@ -68,9 +68,9 @@ def _load_object(args: argparse.Namespace, config: SimConfig) -> ObjectMesh:
     return load_mesh(args.mesh, config.mesh) if args.mesh else builtin_object(args.shape, config.mesh)
 
 
-def _parse_indices(text: str, count: int) -> list[int]:
+def _parse_indices(text: str, count: int, flag: str = "--views", example: str = "0,120,340") -> list[int]:
     try:
-        return parse_view_indices(text, count, "--views", "0,120,340")
+        return parse_view_indices(text, count, flag, example)
     except ValueError as error:
         raise UsageError(str(error)) from None
 
@@ -269,6 +269,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         return _show_sample(args)
     config = load_config(SimConfig, args.config, args.overrides)
     views = view_sphere(config.views)
+    scanned: list[int] = []  # the views scanned from, drawn as orange arrows (none for a grid file)
     if args.grid is not None:
         probabilities = _load_grid_file(args.grid, config.grid.size)
         title = args.grid.name
@@ -280,15 +281,16 @@ def cmd_show(args: argparse.Namespace) -> int:
         scanner = MeshScanner(obj.mesh, config.sensor)
         grid = OccupancyGrid(config.scene_grid)
         rng = np.random.default_rng(args.seed)
-        for index in _parse_indices(args.views, len(views)):
+        scanned = _parse_indices(args.views, len(views))
+        for index in scanned:
             grid.integrate(scanner.scan(views[index], rng), config.sensor.far)
         probabilities = grid.probabilities()
         title = f"{obj.source}, views {args.views}"
     highlight = None
     if args.highlight is not None:
-        highlight = _parse_indices(str(args.highlight), len(views))[0]
+        highlight = _parse_indices(str(args.highlight), len(views), "--highlight", "120")[0]
     out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title,
-                       labels=("--highlight view", ""))
+                       others=scanned, labels=("--highlight view", f"scanned views ({len(scanned)})"))
     print(f"wrote {out}")
     return 0
 

@@ -413,8 +413,10 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
         if result.error is None:
             report.done.append(result)
         else:
-            report.failures.append((str(result.unit.source.path or result.unit.source.name), result.error))
-            bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {result.error}", file=sys.stderr)
+            name = str(result.unit.source.path or result.unit.source.name)
+            reason = result.error.removeprefix(f"{name}: ")  # a MeshError names its file: said once, in name
+            report.failures.append((name, reason))
+            bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {reason}", file=sys.stderr)
 
     try:
         with _executor(config, out_dir, workers, advance, policy) as (execute, ticked):
