@@ -109,7 +109,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
     from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources
-    from nbvdata.policy import PolicySource
+    from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
              "episode.explore": args.explore, "episode.oracle_mix": args.oracle_mix,
@@ -117,7 +117,11 @@ def cmd_generate(args: argparse.Namespace) -> int:
              "generate.scheduler": args.scheduler}
     overrides = args.overrides + [f"{key}={value}" for key, value in flags.items() if value is not None]
     config = load_config(SimConfig, args.config, overrides)
-    policy = PolicySource.from_path(args.policy) if args.policy is not None else None
+    if args.policy is None and args.policy_provider is not None:
+        raise UsageError(f"--policy-provider {args.policy_provider}: give the file it reads too (--policy FILE)")
+    policy = None
+    if args.policy is not None:
+        policy = PolicySource.from_path(args.policy, args.policy_provider or DEFAULT_PROVIDER)
     if args.meshes is None:
         sources, failures = builtin_sources(config.mesh), []
     else:
@@ -365,6 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "default 0)")
     gen.add_argument("--policy", type=Path, metavar="CHECKPOINT", help="runs move where this trained planner "
                      "(nbvtrain fit's best.pt) would, every state labelled exactly: a DAgger round; needs torch")
+    gen.add_argument("--policy-provider", metavar="NAME", help="with --policy: what makes a policy of that file, "
+                     "a name registered in the nbvdata.policies entry-point group by an installed package "
+                     "(default checkpoint: nbvtrain's trained networks)")
     gen.add_argument("--oracle-mix", type=float, metavar="BETA", help="with --policy: probability that a move "
                      "follows the oracle instead (episode.oracle_mix, default 0)")
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],
