@@ -154,9 +154,9 @@ def grid_from_scans(scans: list[SensorScan], frame: ObjectFrame, config: SimConf
 
 def check_world_frame(scan: SensorScan, frame: ObjectFrame, config: SimConfig) -> None:
     """PlanError when a cloud looks like camera-frame points: moved by its camera-to-world pose,
-    many more of them fall in the object's box than as given (``sensordata.check_in_front``
-    catches inverted poses; this catches a camera-frame cloud whose object lies in front of the
-    sensor, which that check cannot)."""
+    many more of them fall in the object's box than as given (``sensordata.check_pose`` checks
+    the pose against the cloud; this catches a camera-frame cloud whose object lies in front of
+    the sensor, which that check cannot)."""
     half = config.scene_grid.extent / 2
 
     def in_box(points: np.ndarray) -> int:
