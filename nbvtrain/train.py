@@ -433,9 +433,9 @@ def curves_figure(history: list[dict], title: str):
 
 def _plot(path: Path, history: list[dict], title: str) -> None:
     """curves.png of ``curves_figure``, written atomically."""
+    fig = curves_figure(history, title)  # first: it selects matplotlib's Agg backend
     import matplotlib.pyplot as plt
 
-    fig = curves_figure(history, title)
     partial = path.with_name(path.name + ".partial.png")
     fig.savefig(partial, dpi=90)
     plt.close(fig)
