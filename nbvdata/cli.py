@@ -68,9 +68,9 @@ def _load_object(args: argparse.Namespace, config: SimConfig) -> ObjectMesh:
     return load_mesh(args.mesh, config.mesh) if args.mesh else builtin_object(args.shape, config.mesh)
 
 
-def _parse_indices(text: str, count: int) -> list[int]:
+def _parse_indices(text: str, count: int, flag: str = "--views", example: str = "0,120,340") -> list[int]:
     try:
-        return parse_view_indices(text, count, "--views", "0,120,340")
+        return parse_view_indices(text, count, flag, example)
     except ValueError as error:
         raise UsageError(str(error)) from None
 
@@ -109,7 +109,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
     from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources
-    from nbvdata.policy import PolicySource
+    from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
              "episode.explore": args.explore, "episode.oracle_mix": args.oracle_mix,
@@ -117,7 +117,11 @@ def cmd_generate(args: argparse.Namespace) -> int:
              "generate.scheduler": args.scheduler}
     overrides = args.overrides + [f"{key}={value}" for key, value in flags.items() if value is not None]
     config = load_config(SimConfig, args.config, overrides)
-    policy = PolicySource.from_path(args.policy) if args.policy is not None else None
+    if args.policy is None and args.policy_provider is not None:
+        raise UsageError(f"--policy-provider {args.policy_provider}: give the file it reads too (--policy FILE)")
+    policy = None
+    if args.policy is not None:
+        policy = PolicySource.from_path(args.policy, args.policy_provider or DEFAULT_PROVIDER)
     if args.meshes is None:
         sources, failures = builtin_sources(config.mesh), []
     else:
@@ -271,6 +275,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         return _show_sample(args)
     config = load_config(SimConfig, args.config, args.overrides)
     views = view_sphere(config.views)
+    scanned: list[int] = []  # the views scanned from, drawn as orange arrows (none for a grid file)
     if args.grid is not None:
         probabilities = _load_grid_file(args.grid, config.grid.size)
         title = args.grid.name
@@ -282,15 +287,16 @@ def cmd_show(args: argparse.Namespace) -> int:
         scanner = MeshScanner(obj.mesh, config.sensor)
         grid = OccupancyGrid(config.scene_grid)
         rng = np.random.default_rng(args.seed)
-        for index in _parse_indices(args.views, len(views)):
+        scanned = _parse_indices(args.views, len(views))
+        for index in scanned:
             grid.integrate(scanner.scan(views[index], rng), config.sensor.far)
         probabilities = grid.probabilities()
         title = f"{obj.source}, views {args.views}"
     highlight = None
     if args.highlight is not None:
-        highlight = _parse_indices(str(args.highlight), len(views))[0]
+        highlight = _parse_indices(str(args.highlight), len(views), "--highlight", "120")[0]
     out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title,
-                       labels=("--highlight view", ""))
+                       others=scanned, labels=("--highlight view", f"scanned views ({len(scanned)})"))
     print(f"wrote {out}")
     return 0
 
@@ -365,6 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "default 0)")
     gen.add_argument("--policy", type=Path, metavar="CHECKPOINT", help="runs move where this trained planner "
                      "(nbvtrain fit's best.pt) would, every state labelled exactly: a DAgger round; needs torch")
+    gen.add_argument("--policy-provider", metavar="NAME", help="with --policy: what makes a policy of that file, "
+                     "a name registered in the nbvdata.policies entry-point group by an installed package "
+                     "(default checkpoint: nbvtrain's trained networks)")
     gen.add_argument("--oracle-mix", type=float, metavar="BETA", help="with --policy: probability that a move "
                      "follows the oracle instead (episode.oracle_mix, default 0)")
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],

@@ -41,7 +41,7 @@ from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, swee
 from nbvdata.config import ConfigError, MeshConfig, SimConfig
 from nbvdata.episode import Mover, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
-from nbvdata.policy import PolicySource, check_policy, load_policy
+from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import GENERATED, MOVES, GridPalette, Shard, ShardError, write_shard
@@ -323,7 +323,7 @@ def prepare_out_dir(out_dir: Path, config: SimConfig, policy: PolicySource | Non
                                   "use a new --out folder, or the settings in "
                                   f"{settings} to resume")
             followed = yaml.safe_load(policy_file.read_text()) if policy_file.exists() else None
-            if (followed or {}).get("sha256") != (policy.sha256 if policy else None):
+            if _policy_key(followed) != _policy_key(policy.record() if policy else None):
                 raise ConfigError(f"{out_dir} holds runs that follow {_policy_words(followed)}, not "
                                   f"{_policy_words(policy.record() if policy else None)}: use a new --out folder"
                                   + (f", or --policy with the checkpoint of sha256 {followed['sha256']} to resume"
@@ -337,11 +337,19 @@ def prepare_out_dir(out_dir: Path, config: SimConfig, policy: PolicySource | Non
     sweep_partials(out_dir)
 
 
+def _policy_key(record: dict | None) -> tuple[str, str] | None:
+    """What makes two policies the same: the file's sha256 and the provider reading it."""
+    return None if record is None else (record["sha256"], record.get("provider", DEFAULT_PROVIDER))
+
+
 def _policy_words(record: dict | None) -> str:
-    """"the oracle" or "the policy nbvnet-4-5 epoch 12 (sha256 0123456789ab...)"."""
+    """"the oracle" or "the policy nbvnet-4-5 epoch 12 (sha256 0123456789ab...)" (with its
+    provider when not the default)."""
     if record is None:
         return "the oracle (no --policy)"
-    return f"the policy {record.get('network') or 'checkpoint'} (sha256 {record['sha256'][:12]}...)"
+    provider = record.get("provider", DEFAULT_PROVIDER)
+    provider = f" of provider {provider}" if provider != DEFAULT_PROVIDER else ""
+    return f"the policy {record.get('network') or 'checkpoint'}{provider} (sha256 {record['sha256'][:12]}...)"
 
 
 def _shard_problem(path: Path) -> str | None:
@@ -413,8 +421,10 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
         if result.error is None:
             report.done.append(result)
         else:
-            report.failures.append((str(result.unit.source.path or result.unit.source.name), result.error))
-            bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {result.error}", file=sys.stderr)
+            name = str(result.unit.source.path or result.unit.source.name)
+            reason = result.error.removeprefix(f"{name}: ")  # a MeshError names its file: said once, in name
+            report.failures.append((name, reason))
+            bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {reason}", file=sys.stderr)
 
     try:
         with _executor(config, out_dir, workers, advance, policy) as (execute, ticked):

@@ -2,7 +2,10 @@
 
 Occupied voxels are blue, unknown voxels yellow, candidate views grey dots, and highlighted
 views arrows pointing at the object centre (red for the chosen one, orange for others); a legend
-says so, with the voxel counts. The PNG is cropped to what is drawn.
+says so, with the voxel counts. Unknown voxels enclosed by others (the inside of an object,
+which no scan reaches) would show no face: then the quarter of the grid facing the viewer is
+cut away, so that the cut shows them, and the legend says so. The PNG is cropped to what is
+drawn.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from nbvdata.views import ViewSet  # noqa: E402
 OCCUPIED = (0.15, 0.35, 0.85, 1.0)
 UNKNOWN = (1.0, 0.85, 0.1, 0.25)
 MARGIN_PX = 8  # blank pixels kept around the drawing, the title and the legend
+VIEW = {"elev": 30, "azim": -60}  # the 3D axes' viewpoint (matplotlib's default): from +x, -y and above
+CUT_AWAY = "front quarter cut away to show the inside"
 
 
 def render_state(
@@ -37,12 +42,19 @@ def render_state(
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
+    candidates: int | None = None,
 ) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
     The arguments are those of ``draw_state``.
     """
-    fig = draw_state(probabilities, extent, views, highlight, others, title, labels, views_label)
+    return save_cropped(draw_state(probabilities, extent, views, highlight, others, title, labels, views_label,
+                                   candidates), out)
+
+
+def save_cropped(fig: Figure, out: str | Path) -> Path:
+    """Write ``fig`` (a ``draw_state`` figure) as a PNG cropped to its drawing, title and legend,
+    and close it; returns the path."""
     fig.canvas.draw()
     pixels = np.asarray(fig.canvas.buffer_rgba())
     height = pixels.shape[0]
@@ -89,6 +101,7 @@ def draw_state(
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
+    candidates: int | None = None,
 ) -> Figure:
     """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
@@ -98,6 +111,9 @@ def draw_state(
     others : indices drawn as orange arrows (e.g. the runner-up candidates)
     labels : what the red and the orange arrows are, for the legend
     views_label : what the grey dots are, for the legend
+    candidates : the first ``candidates`` views are the candidate views, drawn as grey dots; the
+        others (e.g. a robot's sensor positions) only as arrows (None: all views are candidates).
+        The red arrow's legend names its view index only when it is a candidate.
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -109,7 +125,13 @@ def draw_state(
 
     fig = plt.figure(figsize=(7, 7), dpi=110)
     ax = fig.add_axes((0, 0, 1, 1), projection="3d")
-    quads, face_colors = exposed_faces(occupied | unknown, colors)
+    ax.view_init(**VIEW)
+    filled = occupied | unknown
+    cut = bool((unknown & enclosed(filled)).any())
+    if cut:
+        filled = filled.copy()
+        filled[n - n // 2:, :n // 2] = False  # the quarter facing VIEW's viewpoint
+    quads, face_colors = exposed_faces(filled, colors)
     ax.add_collection3d(Poly3DCollection(quads, facecolors=face_colors, edgecolors=(0, 0, 0, 0.08),
                                          linewidths=0.2))
 
@@ -120,19 +142,23 @@ def draw_state(
     legend = [Patch(facecolor=OCCUPIED, edgecolor="0.3", label=f"occupied ({occupied.sum()} voxels)"),
               Patch(facecolor=UNKNOWN[:3] + (0.5,), edgecolor="0.3", label=f"unknown ({unknown.sum()})"),
               Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
+    if cut:
+        legend.append(Patch(facecolor="none", edgecolor="none", label=CUT_AWAY))
     upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
         positions = to_grid(views.positions)
-        ax.scatter(*positions.T, s=3, c="0.55", depthshade=False)
+        candidates = len(positions) if candidates is None else candidates
+        ax.scatter(*positions[:candidates].T, s=3, c="0.55", depthshade=False)
         legend.append(Line2D([], [], linestyle="", marker="o", markersize=4, color="0.55",
-                             label=f"{views_label} ({len(positions)})"))
+                             label=f"{views_label} ({candidates})"))
         arrows = [(i, "orange") for i in others] + ([(highlight, "red")] if highlight is not None else [])
         for index, color in arrows:
             start = positions[index]
             arrow = (to_grid(np.zeros(3)) - start) * 0.35
             ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3)
         if highlight is not None:
-            legend.append(Line2D([], [], color="red", linewidth=2.5, label=f"{labels[0]} (view {highlight})"))
+            which = f" (view {highlight})" if highlight < candidates else ""
+            legend.append(Line2D([], [], color="red", linewidth=2.5, label=labels[0] + which))
         if len(others):
             legend.append(Line2D([], [], color="orange", linewidth=2.5, label=labels[1]))
         reach = np.abs(positions - n / 2).max()
@@ -157,6 +183,17 @@ def draw_state(
 _SQUARE = np.array([(0, 0), (1, 0), (1, 1), (0, 1)])
 # Brightness of faces by (axis, side): a fixed light from above and in front, as a shading cue.
 _SHADE = {(0, 0): 0.70, (0, 1): 0.85, (1, 0): 0.80, (1, 1): 0.65, (2, 0): 0.55, (2, 1): 1.0}
+
+
+def enclosed(filled: np.ndarray) -> np.ndarray:
+    """(n, n, n) bool: the filled voxels whose six neighbours are all filled (no face of theirs is
+    drawn); ``filled`` (n, n, n) bool, the grid's outside counts as empty."""
+    padded = np.pad(filled, 1)
+    inner = filled.copy()
+    for axis in range(3):
+        for shift in (-1, 1):
+            inner &= np.roll(padded, shift, axis=axis)[1:-1, 1:-1, 1:-1]
+    return inner
 
 
 def exposed_faces(filled: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

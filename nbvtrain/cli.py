@@ -232,6 +232,11 @@ def cmd_release(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from nbvtrain.models import MODELS
+    from nbvtrain.release import TASKS, released_files
+
+    # what commands use without a checkpoint: the package's released network of each task
+    files = released_files()
+    released = {task: Path(files[task]).stem if task in files else "none released" for task in TASKS}
 
     summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
     parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
@@ -243,7 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "version's manifest (manifests/NAME-X.Y.Z.json: verified, then trained on with its split)")
     fit.add_argument("--root", type=Path, help="with a manifest: the folder holding its shards (default: the "
                      "one it records)")
-    fit.add_argument("--config", type=Path, help="YAML file of training settings (see configs/train.yaml)")
+    fit.add_argument("--config", type=Path, help="YAML file of training settings (default: the paper's, which "
+                     "configs/train.yaml lists)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
     fit.add_argument("--model", choices=list(MODELS), help="network (default nbvnet-4-5)")
@@ -278,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
     predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
-                         "released score network)")
+                         f"released score network, {released['scores']})")
     predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
                          "from the shard's run for a shard sample, none for a .npy grid)")
     predict.add_argument("--k", type=float, default=1.0, help="scale of the position beyond the view sphere "
@@ -303,8 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
                       "mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
     plan.add_argument("--up", default="z", help="the world's vertical: x, y, z, -x, -y, -z or a vector a,b,c "
                       "(default z)")
-    plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit, regression or classification "
-                      "(default: the released model)")
+    plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit: a candidate-score, regression or "
+                      f"classification network (default: the released score network, {released['scores']})")
     plan.add_argument("--max-range", type=float, help="with --scans: metres from the sensor beyond which a point "
                       "marks nothing occupied and carves free space to that range (default sensor.far x k)")
     plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
@@ -320,21 +326,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     baselines = sub.add_parser("baselines", help="mean-direction and nearest-neighbour scores on a split")
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
-    baselines.add_argument("--split", choices=["random", "mesh"], default="random")
-    baselines.add_argument("--val-fraction", type=float, default=0.2)
-    baselines.add_argument("--seed", type=int, default=0)
-    baselines.add_argument("--memory-limit-gb", type=float, default=8.0)
+    baselines.add_argument("--split", choices=["random", "mesh"], default="random", help="random samples (paper, "
+                           "default) or whole meshes held out, as nbvtrain fit --split")
+    baselines.add_argument("--val-fraction", type=float, default=0.2, help="share held out for validation "
+                           "(default 0.2)")
+    baselines.add_argument("--seed", type=int, default=0, help="seed of the split, as nbvtrain fit --seed (default 0)")
+    baselines.add_argument("--memory-limit-gb", type=float, default=8.0, help="grids in memory up to this size, "
+                           "else read from the shards as needed (default 8)")
     baselines.add_argument("--mixed-scenes", action="store_true", help="score shards made in different scenes "
                            "together (refused by default, as by fit)")
     baselines.set_defaults(func=cmd_baselines)
 
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
     evaluate.add_argument("--meshes", type=Path, required=True, help="folder of meshes, one mesh file, or a .txt list")
-    evaluate.add_argument("--score-checkpoint", type=Path, help="candidate-score checkpoint (--model nbvscore-3; "
-                          "default: the released one)")
+    evaluate.add_argument("--score-checkpoint", type=Path, help="candidate-score checkpoint (a run of an nbvscore-* "
+                          f"model; default: the released one, {released['scores']})")
     evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt; default: the "
-                          "released one)")
-    evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class)")
+                          f"released one, {released['regression']})")
+    evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
+                          "is released: without one the classification planner is skipped)")
     evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
                           help="comma-separated, of scores,regression,classification,infogain,oracle,random "
                           "(default all)")
@@ -345,7 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--starts", type=int, default=0, help="random start views per object besides the front one")
     evaluate.add_argument("--seed", type=int, default=0, help="seed of start views, reference points, random planner")
     evaluate.add_argument("--out", type=Path, default=Path("runs/evaluate"), help="output folder (runs/evaluate)")
-    evaluate.add_argument("--config", type=Path, help="YAML of simulation settings (as nbvdata; configs/smoke.yaml)")
+    evaluate.add_argument("--config", type=Path, help="YAML of simulation settings, as for nbvdata (default: the "
+                          "default scene; configs/smoke.yaml is a small one for a quick try)")
     evaluate.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                           help="override one simulation setting, e.g. --set sensor.noise_std=0.001")
     evaluate.add_argument("--workers", type=int, default=1, help="meshes evaluated at once, in processes of one "

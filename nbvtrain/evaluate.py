@@ -364,11 +364,12 @@ def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> 
 
 def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
     """One PNG per object: coverage (%) against scans, a line per planner (mean over starts,
-    shaded from the lowest to the highest start)."""
+    shaded from the lowest to the highest start; the legend and title say so)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -378,16 +379,23 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
     paths = []
     for mesh, planners in sorted(series.items()):
         figure, axes = plt.subplots(figsize=(6, 4))
+        counts = {len(starts) for starts in planners.values()}
         for planner, starts in planners.items():
             scans = sorted(next(iter(starts.values())))
             values = np.array([[start[s] for s in scans] for start in starts.values()])
             (line,) = axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
             if len(values) > 1:
                 axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
-        axes.set(xlabel="scan", ylabel="coverage (%)", title=mesh, ylim=(0, 100))
+        handles = axes.get_legend_handles_labels()[0]
+        title = mesh
+        if max(counts) > 1:  # lines are means over the starts, bands their range
+            starts = f"{max(counts)} starts" if len(counts) == 1 else "the starts"
+            title = f"{mesh}: mean of {starts}"
+            handles.append(Patch(color="0.5", alpha=0.25, label=f"shaded: lowest to highest of {starts}"))
+        axes.set(xlabel="scan", ylabel="coverage (%)", title=title, ylim=(0, 100))
         axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # scans are whole: no tick at 1.5
         axes.grid(alpha=0.3)
-        axes.legend(loc="lower right", fontsize=8)
+        axes.legend(handles=handles, loc="lower right", fontsize=8)
         figure.tight_layout()
         path = folder / f"{mesh}.png"
         figure.savefig(path, dpi=100)

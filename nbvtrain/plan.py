@@ -27,7 +27,7 @@ size, the grid's corner on a key boundary, axes aligned) this is exact, voxel fo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -37,8 +37,8 @@ from scipy.spatial.transform import Rotation
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
-from nbvdata.views import Pose, ViewSet, look_at_rotations
-from nbvtrain.predict import NBVPrediction, Predictor
+from nbvdata.views import Pose, ViewSet, look_at_rotations, view_sphere
+from nbvtrain.predict import NBVPrediction, Predictor, candidate_fields
 from nbvtrain.release import released_checkpoint
 from nbvtrain.scores import scanned_views
 from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
@@ -154,9 +154,9 @@ def grid_from_scans(scans: list[SensorScan], frame: ObjectFrame, config: SimConf
 
 def check_world_frame(scan: SensorScan, frame: ObjectFrame, config: SimConfig) -> None:
     """PlanError when a cloud looks like camera-frame points: moved by its camera-to-world pose,
-    many more of them fall in the object's box than as given (``sensordata.check_in_front``
-    catches inverted poses; this catches a camera-frame cloud whose object lies in front of the
-    sensor, which that check cannot)."""
+    many more of them fall in the object's box than as given (``sensordata.check_pose`` checks
+    the pose against the cloud; this catches a camera-frame cloud whose object lies in front of
+    the sensor, which that check cannot)."""
     half = config.scene_grid.extent / 2
 
     def in_box(points: np.ndarray) -> int:
@@ -228,11 +228,13 @@ class GridPlanner(Protocol):
 
     ``taken`` (S, 3) are the sensor positions of the scans so far, object frame (None for an
     OctoMap): a candidate-score network masks the candidates they took; the regression and
-    classification networks do not use them."""
+    classification networks do not use them. ``view_units``: a candidate-score network's (V, 3)
+    unit candidate views, None for the others."""
 
     name: str
     epoch: int
     radius: float
+    view_units: np.ndarray | None
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
         ...
@@ -244,6 +246,7 @@ class NetworkPlanner:
     def __init__(self, predictor: Predictor):
         self.predictor = predictor
         self.name, self.epoch, self.radius = predictor.name, predictor.epoch, predictor.radius
+        self.view_units = predictor.view_units
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
         return self.predictor.predict(grid)[0]
@@ -255,8 +258,13 @@ class ScorePlanner(NetworkPlanner):
     OctoMap has no scans, so none is marked)."""
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
-        state = None if taken is None else scanned_views(taken, self.predictor.view_units)
-        return self.predictor.predict(grid, state)[0]
+        return self.predictor.predict(grid, scanned_state(taken, self.view_units))[0]
+
+
+def scanned_state(taken: np.ndarray | None, view_units: np.ndarray | None) -> np.ndarray | None:
+    """(V,) bool the candidate views the scans at ``taken`` ((S, 3) sensor positions, object
+    frame) marked (``nbvtrain.scores.scanned_views``); None without scans or candidate views."""
+    return None if taken is None or view_units is None else scanned_views(taken, view_units)
 
 
 PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
@@ -287,6 +295,8 @@ class PlanResult:
     grid : (n, n, n) float32 the grid the network saw, 0.5 = unknown
     taken : (S, 3) scan sensor positions, object frame (None for an OctoMap)
     max_range : metres, world (None for an OctoMap)
+    candidate : a score network's chosen candidate ``view`` and the ``scanned`` views the scans
+        marked, as ``nbvtrain predict`` gives them (``predict.candidate_fields``); {} otherwise
     """
 
     pose: Pose
@@ -300,6 +310,7 @@ class PlanResult:
     taken: np.ndarray | None = None
     max_range: float | None = None
     octomap: dict | None = None
+    candidate: dict = field(default_factory=dict)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -317,7 +328,7 @@ class PlanResult:
             "object": {"center": self.frame.center.tolist(), "size": self.config.mesh.object_size * self.frame.k,
                        "up": self.frame.up.tolist(), "k": self.frame.k},
             "view_radius": self.planner.radius * self.frame.k,
-            "source": self.source, "model": self.planner.name, "epoch": self.planner.epoch,
+            "source": self.source, "model": self.planner.name, "epoch": self.planner.epoch, **self.candidate,
             "network_output": self.raw.tolist(),
         }
         if self.max_range is not None:
@@ -366,22 +377,38 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
                         f"views.radius {config.views.radius:g} m: pass the training data's scene (--config)")
     prediction = planner.next_view(grid, taken)
     world = frame.pose_to_world(prediction.pose)
+    candidate = candidate_fields(planner.view_units, prediction.direction, scanned_state(taken, planner.view_units))
     return PlanResult(world, prediction.pose, np.asarray(prediction.raw), frame, grid, config, planner, source,
-                      taken, reach, octomap_info)
+                      taken, reach, octomap_info, candidate)
 
 
 def render_plan(result: PlanResult, out: str | Path) -> Path:
-    """A PNG of the grid the network saw with the scans' sensor positions (orange) and the NBV
-    (red), drawn in the object frame (``nbvdata.render``)."""
-    from nbvdata.render import render_state
+    """A PNG of ``draw_plan``, cropped (``nbvdata.render``)."""
+    from nbvdata.render import save_cropped
 
+    return save_cropped(draw_plan(result), out)
+
+
+def draw_plan(result: PlanResult):
+    """The figure of the grid the network saw, in the object frame: the candidate views (grey:
+    a score network's own, else the scene's view sphere), the scans' sensor positions (orange)
+    and the NBV (red; for a score network its candidate view's index). The caller closes it."""
+    from nbvdata.render import draw_state
+
+    if result.planner.view_units is not None:
+        candidates = result.planner.view_units * result.planner.radius
+    else:
+        candidates = view_sphere(result.config.views).positions
     taken = np.zeros((0, 3)) if result.taken is None else result.taken
-    positions = np.concatenate([taken, result.object_pose.position[None]])
+    view = result.candidate.get("view")
+    answer = result.object_pose.position[None] if view is None else np.zeros((0, 3))  # off the candidates
+    positions = np.concatenate([candidates, taken, answer])
     views = ViewSet(positions, look_at_rotations(positions))
+    scans = range(len(candidates), len(candidates) + len(taken))
     title = f"{result.planner.name}: next-best-view for {Path(result.source).name} (object frame, +z = world up)"
-    return render_state(result.grid, result.config.scene_grid.extent, out, views, highlight=len(taken),
-                        others=range(len(taken)), title=title, labels=("next-best-view", "scans taken"),
-                        views_label="sensor positions")
+    return draw_state(result.grid, result.config.scene_grid.extent, views,
+                      highlight=len(positions) - 1 if view is None else view, others=scans, title=title,
+                      labels=("next-best-view", f"scans taken ({len(taken)})"), candidates=len(candidates))
 
 
 def _text(vector: np.ndarray) -> str:

@@ -3,7 +3,10 @@
 The moves are exactly those of ``nbvtrain evaluate``'s planner for the checkpoint
 (``nbvtrain.planners.LearnedPlanner``): the regression network's direction at the view sphere's
 radius, looking at the centre (a continuous pose, not snapped to a candidate view), the
-classification network's class view, or the score network's best unscanned candidate view. nbvdata imports this module only when ``--policy`` is given.
+classification network's class view, or the score network's best unscanned candidate view.
+
+``CheckpointPolicy`` is the ``checkpoint`` provider of the ``nbvdata.policies`` entry-point group
+(pyproject.toml): nbvdata finds it there, by name, and imports it only when ``--policy`` is given.
 """
 
 from __future__ import annotations

@@ -182,11 +182,19 @@ def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: tor
 def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str,
                     taken: np.ndarray | None = None) -> str:
     """The JSON ``nbvtrain predict`` prints; for a score network also the chosen candidate
-    ``view`` and the ``scanned`` views it was told of."""
-    extra = {}
-    if predictor.view_units is not None:
-        extra = {"view": int(np.argmax(predictor.view_units @ prediction.direction)),
-                 "scanned": [] if taken is None else np.flatnonzero(taken).tolist()}
+    ``view`` and the ``scanned`` views it was told of (``candidate_fields``)."""
+    extra = candidate_fields(predictor.view_units, prediction.direction, taken)
     return json.dumps({"source": source, "checkpoint": str(predictor.path), "model": predictor.name,
                        "epoch": predictor.epoch, "radius": predictor.radius, "k": predictor.k, **extra,
                        **prediction.to_dict()}, indent=2)
+
+
+def candidate_fields(view_units: np.ndarray | None, direction: np.ndarray, taken: np.ndarray | None) -> dict:
+    """What a score network's answer adds to the JSON of ``predict`` and ``plan``: the chosen
+    candidate ``view`` (the index of the candidate nearest to the (3,) ``direction``) and the
+    ``scanned`` views it was told of (``taken``: (V,) bool, None = none); {} for a network without
+    candidate views (``view_units`` None, else (V, 3) unit positions)."""
+    if view_units is None:
+        return {}
+    return {"view": int(np.argmax(view_units @ direction)),
+            "scanned": [] if taken is None else np.flatnonzero(taken).tolist()}

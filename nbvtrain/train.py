@@ -446,29 +446,46 @@ def _write_csv(path: Path, history: list[dict]) -> None:
     _write_text(path, buffer.getvalue())
 
 
-def _plot(path: Path, history: list[dict], title: str) -> None:
+def curves_figure(history: list[dict], title: str):
+    """The learning curves of ``history`` (rows of history.csv): losses and validation MAE (left,
+    log scale), validation angle to the label and gain ratio (right, two y axes); each line in a
+    legend, whole epochs on the x axes. The caller closes the figure."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     epochs = [row["epoch"] for row in history]
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
     left.plot(epochs, [row["train_loss"] for row in history], label="train loss")
     left.plot(epochs, [row["val_loss"] for row in history], label="val loss")
-    left.plot(epochs, [row["val_mae"] for row in history], label="val MAE", linestyle="--")
+    left.plot(epochs, [row["val_mae"] for row in history], label="val MAE (position)", linestyle="--")
     left.set_yscale("log")
-    left.set_xlabel("epoch")
+    left.set_ylabel("loss, MAE (log scale)")
     left.legend()
     right.plot(epochs, [row["val_angle_deg"] for row in history], color="tab:red", label="val angle (deg)")
-    right.set_xlabel("epoch")
-    right.set_ylabel("angle to the ground-truth NBV (deg)")
+    right.set_ylabel("angle to the ground-truth NBV (deg)", color="tab:red")
+    lines = right.get_lines()
     if not all(math.isnan(row["val_gain_ratio"]) for row in history):
         twin = right.twinx()
-        twin.plot(epochs, [row["val_gain_ratio"] for row in history], color="tab:green", label="gain ratio")
-        twin.set_ylabel("gain of nearest view / best gain")
+        twin.plot(epochs, [row["val_gain_ratio"] for row in history], color="tab:green", label="val gain ratio")
+        twin.set_ylabel("gain of nearest view / best gain", color="tab:green")
         twin.set_ylim(0, 1.02)
+        lines += twin.get_lines()
+    right.legend(lines, [line.get_label() for line in lines], loc="best")
+    for axes in (left, right):
+        axes.set_xlabel("epoch")
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # epochs are whole: no tick at 1.5
     fig.suptitle(title)
     fig.tight_layout()
+    return fig
+
+
+def _plot(path: Path, history: list[dict], title: str) -> None:
+    """curves.png of ``curves_figure``, written atomically."""
+    fig = curves_figure(history, title)  # first: it selects matplotlib's Agg backend
+    import matplotlib.pyplot as plt
+
     partial = path.with_name(path.name + ".partial.png")
     fig.savefig(partial, dpi=90)
     plt.close(fig)

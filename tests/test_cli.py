@@ -31,6 +31,36 @@ def test_show_renders_a_saved_grid(tmp_path):
     assert out.stat().st_size > 1000
 
 
+def _legend_of_show(argv, monkeypatch) -> list[str]:
+    """The legend texts of the picture ``nbvdata show`` draws."""
+    import nbvdata.render
+
+    texts, draw_state = [], nbvdata.render.draw_state
+
+    def spy(*args, **kwargs):
+        figure = draw_state(*args, **kwargs)
+        texts.extend(text.get_text() for legend in figure.legends for text in legend.get_texts())
+        return figure
+
+    monkeypatch.setattr(nbvdata.render, "draw_state", spy)
+    assert main(["show", *argv]) == 0
+    return texts
+
+
+def test_show_marks_the_views_scanned_and_the_highlighted_one(tmp_path, monkeypatch):
+    texts = _legend_of_show(["--views", "3,41", "--highlight", "20", "--set", "views.count=50",
+                             "--out", str(tmp_path / "s.png")], monkeypatch)
+    assert "scanned views (2)" in texts and "--highlight view (view 20)" in texts, texts
+    assert "candidate views (50)" in texts
+
+
+def test_a_highlight_out_of_range_names_highlight(tmp_path, capsys):
+    assert main(["show", "--views", "3", "--highlight", "9999", "--set", "views.count=50",
+                 "--out", str(tmp_path / "s.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("nbvdata show: error: --highlight: indices [9999] out of range") and "--views" not in err
+
+
 @pytest.mark.parametrize("argv, message", [
     (["generate", "--meshes", "nope.obj"], "nope.obj: no such file or folder; pass a folder of mesh files, one mesh "
      "file (.obj, .ply, .off, .stl, .glb, .gltf) or a .txt list of mesh files"),

@@ -195,6 +195,9 @@ def test_bad_meshes_are_reported_and_the_others_go_on(tmp_path, capsys):
     assert failures[0] == "mesh\treason" and len(failures) == 3
     assert {Path(line.split("\t")[0]).name for line in failures[1:]} == {"broken.obj", "empty.stl"}
     assert all(line.split("\t")[1] for line in failures[1:])  # each with its reason
+    for line in failures[1:]:  # the path said once, in its column; stderr names the file once
+        path, reason = line.split("\t")
+        assert path not in reason and err.count(path) == 0 and err.count(Path(path).name) == 1, line
     shards = list(out.glob("mug-*.h5"))
     assert len(shards) == 1 and len(Shard(shards[0])) > 0
 

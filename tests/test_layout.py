@@ -1,15 +1,16 @@
-"""The project's shape: imports run one way, nbvdata never imports torch, pytest runs quietly."""
+"""The project's shape: imports run one way (nbvtrain -> nbvdata, never back), nbvdata never
+imports torch, pytest runs quietly."""
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("nbvdata", "nbvtrain")
-# The one import against the flow, by design: `nbvdata generate --policy` loads the torch side of
-# the policy seam (issue 17) inside nbvdata.policy.load_policy, only when a policy is given.
-SEAM = ("nbvdata.policy", "nbvtrain.policy")
 
 
 def _imports(path: Path) -> set[str]:
@@ -29,23 +30,7 @@ def _imports(path: Path) -> set[str]:
 def _graph() -> dict[str, set[str]]:
     """Module -> the project modules it imports (packages' own __init__ left out)."""
     modules = {f"{p}.{f.stem}": f for p in PACKAGES for f in (ROOT / p).glob("*.py") if f.stem != "__init__"}
-    graph = {name: _imports(path) & modules.keys() for name, path in modules.items()}
-    graph[SEAM[0]].discard(SEAM[1])
-    return graph
-
-
-def _module_level_imports(path: Path) -> set[str]:
-    """The modules a file imports at its top level (run by any import of it)."""
-    tree = ast.parse(path.read_text())
-    top = ast.Module(body=[node for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))],
-                     type_ignores=[])
-    found = set()
-    for node in ast.walk(top):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-            found.add(node.module)
-    return found
+    return {name: _imports(path) & modules.keys() for name, path in modules.items()}
 
 
 def test_imports_run_one_way():
@@ -65,12 +50,22 @@ def test_imports_run_one_way():
 
 
 def test_nbvdata_never_imports_torch_or_nbvtrain():
+    """Not at the top, not inside a function, not by a module name handed to importlib: the policy
+    seam goes through the nbvdata.policies entry points (pyproject.toml), which nbvtrain registers."""
     for path in (ROOT / "nbvdata").glob("*.py"):
         bad = {name for name in _imports(path) if name.split(".")[0] in ("torch", "nbvtrain")}
-        if path.stem == SEAM[0].split(".")[1]:
-            assert SEAM[1] not in _module_level_imports(path), "the policy seam must import nbvtrain lazily"
-            bad.discard(SEAM[1])
-        assert not bad, f"{path.name} imports {bad}"
+        named = {node.value for node in ast.walk(ast.parse(path.read_text()))
+                 if isinstance(node, ast.Constant) and isinstance(node.value, str)
+                 and re.fullmatch(r"(torch|nbvtrain)(\.\w+)*(:\w+)?", node.value)}
+        assert not bad and not named, f"{path.name} imports {bad or named}"
+
+
+def test_nbvtrain_registers_its_policy_provider():
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    points = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["nbvdata.policies"]
+    assert points == {"checkpoint": "nbvtrain.policy:CheckpointPolicy"}
+    module, name = points["checkpoint"].split(":")
+    assert re.search(rf"^class {name}\b", (ROOT / (module.replace(".", "/") + ".py")).read_text(), re.M)
 
 
 def test_pytest_runs_without_the_dash_plugin_warning():

@@ -19,7 +19,7 @@ from nbvdata.views import Pose, view_sphere
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
-from nbvtrain.plan import ObjectFrame, PlanError, plan, up_rotation
+from nbvtrain.plan import ObjectFrame, PlanError, draw_plan, plan, up_rotation
 from nbvtrain.predict import NBVPrediction
 from nbvtrain.sensordata import SensorDataError, read_cloud
 from nbvtrain.train import _save
@@ -249,7 +249,7 @@ def test_a_world_with_another_vertical_gives_the_same_grid_and_the_turned_answer
 class UnknownCentroid:
     """A planner equivariant by construction: look from the side where the unknown voxels lie."""
 
-    name, epoch, radius = "unknown-centroid", 0, 0.4
+    name, epoch, radius, view_units = "unknown-centroid", 0, 0.4, None
 
     def next_view(self, grid, taken):
         centres = OccupancyGrid(SimConfig().scene_grid).voxel_centres()
@@ -401,17 +401,24 @@ def test_without_a_checkpoint_it_uses_the_released_score_network(scene, tmp_path
     assert answer["model"] == "nbvscore-fc3"
 
 
-def test_a_score_network_never_answers_a_view_the_scans_took(scene, tmp_path, capsys):
-    """The scans' sensor poses mark their candidate views; the answer is the best other one,
-    the same as nbvtrain predict on the same grid with those views scanned."""
-    scans, poses, grid = scene
+def _score_checkpoint(path: Path) -> Path:
+    """A score network whose favourites are the views VIEWS the scans took."""
     units = view_sphere(SimConfig().views).unit_positions
     torch.manual_seed(0)
     net = build_model("nbvscore-fc3", views=units)
     with torch.no_grad():  # make the scanned views the network's favourites
         net.joint_head[-1].bias[list(VIEWS)] += 100.0
-    path = tmp_path / "scores.pt"
     _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvscore-fc3"), [], 0, 0.4, None, units)
+    return path
+
+
+def test_a_score_network_never_answers_a_view_the_scans_took(scene, tmp_path, capsys):
+    """The scans' sensor poses mark their candidate views; the answer is the best other one,
+    the same as nbvtrain predict on the same grid with those views scanned, and plan's JSON says
+    which view and which scanned ones as predict's does."""
+    scans, poses, grid = scene
+    units = view_sphere(SimConfig().views).unit_positions
+    path = _score_checkpoint(tmp_path / "scores.pt")
     assert main(["plan", "--scans", str(_write_scans(tmp_path, scans, poses)), "--center", "0,0,0",
                  "--checkpoint", str(path), "--save-grid", str(tmp_path / "grid.npy")]) == 0
     planned = json.loads(capsys.readouterr().out)
@@ -421,9 +428,44 @@ def test_a_score_network_never_answers_a_view_the_scans_took(scene, tmp_path, ca
                  ",".join(map(str, VIEWS))]) == 0
     predicted = json.loads(capsys.readouterr().out)
     assert predicted["view"] == view and predicted["scanned"] == sorted(VIEWS)
+    assert planned["view"] == view and planned["scanned"] == sorted(VIEWS)
     np.testing.assert_allclose(planned["position"], predicted["position"], atol=1e-9)
     assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(path)]) == 0
     assert json.loads(capsys.readouterr().out)["view"] in VIEWS  # told nothing, it takes a favourite
+
+
+def _legend(result) -> list[str]:
+    import matplotlib.pyplot as plt
+
+    figure = draw_plan(result)
+    texts = [text.get_text() for legend in figure.legends for text in legend.get_texts()]
+    plt.close(figure)
+    return texts
+
+
+def test_the_picture_names_the_candidate_view_and_counts_the_scans(scene, checkpoint, tmp_path):
+    """The red arrow of a score network's answer names its candidate view (the JSON's "view"); the
+    orange ones are the scans, counted as such, never as candidate views; a regression network's
+    answer is no candidate view and names none. An OctoMap has no scans to draw."""
+    scans, poses, _ = scene
+    scans_file = _write_scans(tmp_path / "robot", scans, poses)
+    scored = plan(np.zeros(3), scans=scans_file, checkpoint=_score_checkpoint(tmp_path / "scores.pt"))
+    view = scored.to_dict()["view"]
+    assert view not in VIEWS
+    texts = _legend(scored)
+    assert f"next-best-view (view {view})" in texts and f"scans taken ({len(VIEWS)})" in texts, texts
+    assert "candidate views (500)" in texts
+    regressed = plan(np.zeros(3), scans=scans_file, checkpoint=checkpoint)
+    assert "view" not in regressed.to_dict() and "scanned" not in regressed.to_dict()
+    texts = _legend(regressed)
+    assert "next-best-view" in texts and f"scans taken ({len(VIEWS)})" in texts and "candidate views (500)" in texts
+    pyoctomap = pytest.importorskip("pyoctomap", reason="pip install pyoctomap (a test dependency)")
+    tree = pyoctomap.OcTree(0.005)
+    for scan in scans:
+        tree.insertPointCloud(scan.points.astype(np.float64), scan.origin.astype(np.float64), max_range=1.0)
+    tree.writeBinary(str(tmp_path / "map.bt"))
+    mapped = plan(np.zeros(3), octomap=tmp_path / "map.bt", checkpoint=_score_checkpoint(tmp_path / "scores.pt"))
+    assert mapped.to_dict()["scanned"] == [] and not any("scans" in text for text in _legend(mapped))
 
 
 def test_the_frame_maps_there_and_back(rng):

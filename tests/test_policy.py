@@ -175,6 +175,63 @@ def test_a_bad_checkpoint_is_one_line_and_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()  # refused before anything was written
 
 
+PROVIDER = """
+class FixedView:
+    \"\"\"A policy of another package: always the candidate view its file names.\"\"\"
+
+    def __init__(self, path, config, threads):
+        self.view = int(path.read_text())
+        self.name = f"fixed view {self.view}"
+
+    def start(self, seed):
+        pass
+
+    def next_move(self, probabilities, poses):
+        return self.view
+"""
+
+
+def test_any_package_can_provide_a_policy_through_the_entry_points(tmp_path, monkeypatch, mug, capsys):
+    """nbvdata finds providers in the nbvdata.policies entry-point group only: nbvtrain's
+    checkpoint provider is one (registered in pyproject.toml), another package's is another."""
+    from importlib.metadata import EntryPoint
+
+    import nbvdata.policy
+    from nbvtrain.policy import CheckpointPolicy
+
+    assert nbvdata.policy.load_provider("checkpoint") is CheckpointPolicy  # the installed entry point
+    (tmp_path / "other_package.py").write_text(PROVIDER)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    installed = nbvdata.policy.entry_points
+    fixed = EntryPoint(name="fixed", value="other_package:FixedView", group=nbvdata.policy.GROUP)
+    monkeypatch.setattr(nbvdata.policy, "entry_points",
+                        lambda group: [*installed(group=group), *([fixed] if group == nbvdata.policy.GROUP else [])])
+    (tmp_path / "view.txt").write_text("5")
+    source = PolicySource.from_path(tmp_path / "view.txt", provider="fixed")
+    generate(mug, tmp_path / "out", _config("episode.runs_per_mesh=2"), show_progress=False, policy=source)
+    arrays = _arrays(tmp_path / "out")
+    followed = arrays["move"] == 2
+    assert followed.any() and (arrays["next_view"][followed] == 5).all()
+    digest = hashlib.sha256(b"5").hexdigest()
+    assert arrays["policy"] == {"sha256": digest, "network": "fixed view 5", "provider": "fixed"}
+
+    (tmp_path / "other.txt").write_text("7")
+    argv = ["generate", "--out", str(tmp_path / "out"), "--config", str(SMOKE), "--runs-per-mesh", "2"]
+    for extra, message in ((["--policy", str(tmp_path / "other.txt"), "--policy-provider", "fixed"],
+                            "follow the policy fixed view 5 of provider fixed (sha256 "),
+                           (["--policy", str(tmp_path / "view.txt"), "--policy-provider", "nope"],
+                            "--policy-provider nope: no installed package registers the policy provider 'nope'; "
+                            "installed providers: checkpoint, fixed"),
+                           (["--policy-provider", "fixed"], "--policy-provider fixed: give the file it reads too")):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
+    monkeypatch.setattr(nbvdata.policy, "entry_points", lambda group: [])  # a checkout never pip-installed
+    with pytest.raises(nbvdata.policy.PolicyError, match="needs nbvtrain and PyTorch: no installed package registers "
+                       "the 'checkpoint' policy provider"):
+        nbvdata.policy.load_provider("checkpoint")
+
+
 def test_without_torch_generate_runs_and_policy_names_the_install_command(tmp_path, checkpoints):
     code = ("import sys; sys.modules['torch'] = None\n"
             "from nbvdata.cli import main\n"

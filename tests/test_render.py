@@ -7,7 +7,7 @@ import pytest
 from matplotlib.image import imread
 
 from nbvdata.config import ViewConfig
-from nbvdata.render import draw_state, exposed_faces, render_state, tighten
+from nbvdata.render import CUT_AWAY, UNKNOWN, draw_state, enclosed, exposed_faces, render_state, tighten
 from nbvdata.views import view_sphere
 
 
@@ -31,17 +31,78 @@ def _grid() -> np.ndarray:
     return grid
 
 
+def _shell() -> np.ndarray:
+    """An object seen all round: an occupied shell, its inside unknown (no scan reaches it)."""
+    grid = np.full((16, 16, 16), 0.4, dtype=np.float32)
+    grid[3:13, 3:13, 3:13] = 0.7
+    grid[4:12, 4:12, 4:12] = 0.5
+    return grid
+
+
+def _legend(fig) -> list[str]:
+    return [text.get_text() for legend in fig.legends for text in legend.get_texts()]
+
+
+def _drawn_colours(fig) -> np.ndarray:
+    """(F, 4) RGBA of the voxel faces drawn."""
+    (faces,) = fig.axes[0].collections[:1]
+    return faces.get_facecolor()
+
+
 def test_the_legend_names_every_colour_and_arrow():
     views = view_sphere(ViewConfig(count=40))
-    fig = draw_state(_grid(), 0.3, views, highlight=3, others=[5, 7])
-    texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
+    grid = _grid()
+    grid[4:12, 4:12, 4:12][grid[4:12, 4:12, 4:12] == 0.5] = 0.4
+    grid[5:11, 5:11, 5:11][grid[5:11, 5:11, 5:11] == 0.4] = 0.5  # one layer of unknown: none is enclosed
+    fig = draw_state(grid, 0.3, views, highlight=3, others=[5, 7])
+    texts = _legend(fig)
     plt.close(fig)
-    assert texts == ["occupied (64 voxels)", "unknown (448)", "free (3584, not drawn)", "candidate views (40)",
+    assert texts == ["occupied (64 voxels)", "unknown (152)", "free (3880, not drawn)", "candidate views (40)",
                      "next-best-view (view 3)", "runner-up candidates"]
     fig = draw_state(_grid(), 0.3, views, labels=("last scan", "earlier scans"))
     texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
     plt.close(fig)
-    assert len(texts) == 4 and not any("scan" in text for text in texts)  # no arrows, no arrow entries
+    assert len(texts) == 5 and not any("scan" in text for text in texts)  # no arrows, no arrow entries
+
+
+def test_unknown_voxels_inside_the_object_are_shown_by_a_cut_away():
+    """Without the cut the shell hides every unknown voxel (no face of theirs is drawn); with it the
+    cut shows them, and the legend says so. A grid that hides none is drawn whole."""
+    shell = _shell()
+    filled = shell >= 0.5
+    inside = np.zeros_like(filled)
+    inside[4:12, 4:12, 4:12] = True
+    assert np.array_equal(enclosed(filled), inside)
+    colours = np.zeros(shell.shape + (4,))
+    colours[shell == 0.5] = UNKNOWN
+    _, uncut = exposed_faces(filled, colours)
+    assert not (uncut[:, 3] == UNKNOWN[3]).any()  # the whole grid drawn: not one unknown face shows
+    fig = draw_state(shell, 0.3)
+    drawn, texts = _drawn_colours(fig), _legend(fig)
+    plt.close(fig)
+    assert CUT_AWAY in texts
+    unknown_faces = np.isclose(drawn[:, 3], UNKNOWN[3])
+    # the cut's two planes through the unknown block: 8 x 4 voxels each, 4 x 8 along the shared edge
+    assert unknown_faces.sum() == 2 * 8 * 4 * 1 and len(drawn) > 0
+    solid = np.full((16, 16, 16), 0.4, dtype=np.float32)
+    solid[3:13, 3:13, 3:13] = 0.7
+    fig = draw_state(solid, 0.3)
+    texts, faces = _legend(fig), len(_drawn_colours(fig))
+    plt.close(fig)
+    assert CUT_AWAY not in texts and faces == 6 * 10 * 10  # nothing hidden but occupied: the cube whole
+
+
+def test_views_beyond_the_candidates_are_arrows_only():
+    """A robot's sensor positions are no candidate views: not counted as such, and a red arrow at
+    one of them names no view index."""
+    views = view_sphere(ViewConfig(count=40))
+    fig = draw_state(_grid(), 0.3, views, highlight=39, others=[37, 38], labels=("next-best-view", "scans (2)"),
+                     candidates=37)
+    texts = _legend(fig)
+    dots = fig.axes[0].collections[1].get_offsets()
+    plt.close(fig)
+    assert "candidate views (37)" in texts and "next-best-view" in texts and "scans (2)" in texts
+    assert len(dots) == 37
 
 
 @pytest.mark.parametrize("layout", ["hemisphere", "sphere"])
