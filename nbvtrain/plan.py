@@ -37,10 +37,9 @@ from scipy.spatial.transform import Rotation
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
-from nbvdata.views import Pose, ViewSet, look_at_rotations
+from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views
 from nbvtrain.predict import NBVPrediction, Predictor
 from nbvtrain.release import released_checkpoint
-from nbvtrain.scores import scanned_views
 from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
@@ -251,7 +250,7 @@ class NetworkPlanner:
 
 class ScorePlanner(NetworkPlanner):
     """A candidate-score checkpoint: the best-scoring candidate view not taken by a scan (each scan's
-    sensor position marks its nearest candidate view, ``nbvtrain.scores.scanned_views``; an
+    sensor position marks its nearest candidate view, ``nbvdata.views.scanned_views``; an
     OctoMap has no scans, so none is marked)."""
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:

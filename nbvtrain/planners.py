@@ -6,7 +6,7 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 
 - ``scores``: a trained candidate-score network (``nbvscore-*``); the candidate view with the
   highest score among those not scanned yet (a scanned pose marks its nearest candidate view,
-  ``nbvtrain.scores.scanned_views``), so it never repeats a view.
+  ``nbvdata.views.scanned_views``), so it never repeats a view.
 - ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
   candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
 - ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
@@ -40,9 +40,9 @@ from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
-from nbvdata.views import Pose, ViewSet, look_at_rotations, sphere_positions
+from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
 from nbvtrain.models import class_positions
-from nbvtrain.scores import pick, scanned_views
+from nbvtrain.scores import pick
 
 PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random")
 LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
