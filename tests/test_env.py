@@ -356,3 +356,73 @@ def test_meshes_that_fail_to_load_are_skipped_until_none_is_left(config, tmp_pat
     assert meshes == {"ring.obj"}
     with pytest.raises(ValueError, match="options\\['mesh'\\]='broken': broken.obj cannot be used"):
         mixed.reset(options={"mesh": "broken"})
+
+
+@pytest.fixture(scope="module")
+def mesh_folder(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("meshes")
+    for name in ("mug", "ring"):
+        BUILTIN_SHAPES[name]().export(folder / f"{name}.obj")
+    return folder
+
+
+def test_evaluate_runs_a_policy_on_the_envs_observation_in_the_same_table(config, mesh_folder, tmp_path, capsys):
+    """``--planners env_policies:first_untaken,random``: one table; the policy saw exactly the
+    environment's observations of the same mesh, start and moves, and the coverage is the env's."""
+    from nbvtrain.cli import main
+    import env_policies
+
+    env_policies.SEEN.clear()
+    out = tmp_path / "eval"
+    policy = "env_policies:first_untaken"
+    assert main(["evaluate", "--meshes", str(mesh_folder), "--planners", f"{policy},random,oracle", "--scans", "4",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    with open(out / "coverage.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert {row["planner"] for row in rows} == {policy, "random", "oracle"}
+    assert f"| object | {policy} | random | oracle |" in (out / "summary.md").read_text()
+    env = ReconstructEnv(mesh_folder, config)
+    seen = iter(env_policies.SEEN)
+    for mesh in ("mug", "ring"):
+        run = [row for row in rows if row["mesh"] == mesh and row["planner"] == policy]
+        steps, _ = _episode(env, lambda observation, info: first_untaken_again(observation, next(seen)),
+                            options={"mesh": mesh, "start_view": int(run[0]["start_view"])})
+        assert len(steps) == 4
+        for row, (_, _, _, _, info) in zip(run, steps):
+            assert float(row["coverage"]) == pytest.approx(info["coverage"], abs=1e-6)
+            assert float(row["observable_coverage"]) == pytest.approx(info["observable_coverage"], abs=1e-6)
+    assert next(seen, None) is None
+
+
+def first_untaken_again(observation: dict, seen: dict) -> int:
+    """The env's observation must be the one evaluate gave the policy; then the policy's move."""
+    assert observation.keys() == seen.keys() == {"grid", "taken"}
+    assert np.array_equal(observation["grid"], seen["grid"]) and observation["grid"].dtype == seen["grid"].dtype
+    assert np.array_equal(observation["taken"], seen["taken"]) and seen["taken"].dtype == np.int8
+    return int(np.argmin(observation["taken"]))
+
+
+def test_evaluate_takes_a_direction_policy_from_a_file_and_rejects_bad_ones(mesh_folder, tmp_path, capsys):
+    from nbvtrain.cli import main
+
+    out = tmp_path / "eval"
+    policies = Path(__file__).with_name("env_policies.py")
+    spec = f"{policies}:toward_unknown"
+    assert main(["evaluate", "--meshes", str(mesh_folder / "ring.obj"), "--planners", spec, "--scans", "3",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    with open(out / "coverage.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 3 and {row["planner"] for row in rows} == {spec}
+    radius = np.linalg.norm([[float(row[axis]) for axis in "xyz"] for row in rows], axis=1)
+    assert np.allclose(radius, 0.4)  # directions placed on the view sphere
+    capsys.readouterr()
+    for planners, words in [("env_policies:bad", "policy env_policies:bad returned 'left': must be an integer candidate view index in 0..59 (a policy "
+                             "returns a candidate view index or a (3,) direction)"),
+                            ("env_policies:absent", "env_policies has no function absent"),
+                            ("no_such_module:act", "cannot import no_such_module (ModuleNotFoundError"),
+                            ("missing.py:act", "no such file missing.py"),
+                            (":act", "a policy is module:function")]:
+        assert main(["evaluate", "--meshes", str(mesh_folder / "ring.obj"), "--planners", planners, "--scans", "2",
+                     "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1, err
