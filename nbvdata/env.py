@@ -82,8 +82,9 @@ class ReconstructEnv(gymnasium.Env):
     overlap_penalty : subtracted from the reward of a scan that broke the overlap rule (>= 0)
     scene_cache : scenes kept (each 1-35 MB at the default settings, growing with the views
         visited); None keeps every mesh's
-    threads : > 0 limits ray casting and numba to that many threads (1 in a vector env's
-        processes); 0 uses every core
+    threads : ray casting and numba threads (numba's for the whole process), 1 by default: an
+        environment runs beside others or a learner, and two threads on a busy 2-core machine
+        were 10x slower than one (docs/env.md); 0 = every core
     """
 
     metadata = {"render_modes": []}
@@ -91,7 +92,7 @@ class ReconstructEnv(gymnasium.Env):
     def __init__(self, meshes: str | Path | Sequence[str | Path] | None = None,
                  config: SimConfig | str | Path | None = None, overrides: Sequence[str] = (),
                  action: str = "view", info_scores: bool = False, overlap_penalty: float = 0.0,
-                 scene_cache: int | None = 32, threads: int = 0):
+                 scene_cache: int | None = 32, threads: int = 1):
         self.config = _settings(config, overrides)
         if action not in ACTIONS:
             raise ValueError(f"action={action!r}: must be 'view' (a candidate view index) or 'pose' "
