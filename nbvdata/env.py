@@ -137,12 +137,13 @@ class ReconstructEnv(gymnasium.Env):
             import numba
             numba.set_num_threads(self.threads)
         if mesh is None:
-            mesh = self._draw_mesh()
-        try:
-            _, scene, cache = self._scene(mesh)
-        except (MeshError, ValueError, RuntimeError) as error:  # one asked for by name
-            raise ValueError(f"options['mesh']={options['mesh']!r}: {self.sources[mesh].name} cannot be used: "
-                             f"{error}") from None
+            mesh, (_, scene, cache) = self._draw_mesh()
+        else:
+            try:
+                _, scene, cache = self._scene(mesh)
+            except (MeshError, ValueError, RuntimeError) as error:
+                raise ValueError(f"options['mesh']={options['mesh']!r}: {self.sources[mesh].name} cannot be used: "
+                                 f"{error}") from None
         if view is None:
             view = int(self.np_random.integers(len(self.views)))
         noise = np.random.default_rng(int(self.np_random.integers(2**63)))
@@ -229,28 +230,28 @@ class ReconstructEnv(gymnasium.Env):
         found = [i for i, source in enumerate(self.sources) if mesh in (source.name, source.stem)]
         if len(found) != 1:
             names = ", ".join(self.mesh_names[:5]) + (", ..." if len(self.sources) > 5 else "")
-            problem = "names several meshes: use the file name" if found else f"is none of the meshes ({names})"
+            problem = "names several meshes: give its index in mesh_names" if found else f"is none of the meshes ({names})"
             raise ValueError(f"options['mesh']={mesh!r}: {problem}")
         return found[0]
 
-    def _draw_mesh(self) -> int:
-        """A uniformly drawn usable mesh's index; unusable ones are skipped with a warning, the
-        draws being the same whether or not they were found unusable before."""
-        while True:
+    def _draw_mesh(self) -> tuple[int, tuple]:
+        """A uniformly drawn usable mesh's index and ``SceneCache`` entry; unusable ones are
+        skipped with a warning, the draws being the same whether or not they were found unusable
+        before."""
+        while len(self._unusable) < len(self.sources):
             index = int(self.np_random.integers(len(self.sources)))
             if index in self._unusable:
                 continue
             try:
-                self._scene(index)
-                return index
+                return index, self._scene(index)
             except (MeshError, ValueError, RuntimeError) as error:
                 self._unusable[index] = str(error)
                 warnings.warn(f"nbvdata.env: skipping mesh {self.sources[index].name}: {error}", stacklevel=3)
-            if len(self._unusable) == len(self.sources):
-                reasons = "; ".join(list(self._unusable.values())[:3])
-                raise ValueError(f"no usable mesh among the {len(self.sources)} given: {reasons}")
+        reasons = "; ".join(list(self._unusable.values())[:3])
+        raise ValueError(f"no usable mesh among the {len(self.sources)} given: {reasons}")
 
-    def _scene(self, index: int):
+    def _scene(self, index: int) -> tuple:
+        """``SceneCache`` entry (mesh, scene, view cache) of mesh ``index``."""
         return self._scenes.get(self.sources[index], self.config, self.threads)
 
 

@@ -5,7 +5,6 @@ single envs, the view state, bad input, and RL policies in nbvtrain evaluate."""
 from __future__ import annotations
 
 import csv
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -262,6 +261,9 @@ def test_a_reset_on_a_mesh_seen_before_builds_no_scene(config, monkeypatch):
     for mesh in ("mug", "mug", "ring", "ring", "mug"):
         one.reset(options={"mesh": mesh})
     assert built == ["builtin:mug", "builtin:ring", "builtin:mug"]
+    built.clear()
+    ReconstructEnv(TWO, config, scene_cache=0).reset(seed=0)  # no cache: one build per reset, not two
+    assert len(built) == 1
 
 
 def test_bad_actions_raise_naming_the_value_and_leave_the_episode_as_it_was(env, pose_env):
@@ -349,6 +351,8 @@ def test_meshes_that_fail_to_load_are_skipped_until_none_is_left(config, tmp_pat
     broken = ReconstructEnv(folder, config)
     with pytest.raises(ValueError, match="no usable mesh among the 1 given: .*broken.obj"), pytest.warns(UserWarning):
         broken.reset(seed=0)
+    with pytest.raises(ValueError, match="no usable mesh among the 1 given"):  # known now: no second try
+        broken.reset(seed=1)
     BUILTIN_SHAPES["ring"]().export(folder / "ring.obj")
     mixed = ReconstructEnv(folder, config)
     with pytest.warns(UserWarning, match="skipping mesh broken.obj"):
