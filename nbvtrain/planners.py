@@ -235,7 +235,11 @@ def policy_function(spec: str):
                 module_spec = importlib.util.spec_from_file_location(name, path)
                 module = importlib.util.module_from_spec(module_spec)
                 sys.modules[name] = module
-                module_spec.loader.exec_module(module)
+                try:
+                    module_spec.loader.exec_module(module)
+                except BaseException:
+                    del sys.modules[name]  # half loaded: not kept for a second try
+                    raise
         else:
             if os.getcwd() not in sys.path:
                 sys.path.insert(0, os.getcwd())

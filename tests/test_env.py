@@ -129,10 +129,15 @@ def test_rewards_add_up_to_the_observable_coverage_gained(env, pose_env, config,
             assert reward == pytest.approx(info["observable_coverage"] - before["observable_coverage"], abs=1e-15)
 
 
-def test_info_scores_equal_the_generators_shard_rows(env, config, tmp_path):
+@pytest.mark.parametrize("overrides", [[], ["episode.min_gain=0.05", "episode.max_scans=50"]],
+                         ids=["max_scans", "min_gain"])
+def test_info_scores_equal_the_generators_shard_rows(env, config, tmp_path, overrides):
     """From a generated run's start view, following its moves: every state's grid, gains,
     overlaps, NBV and observable coverage are the shard's row, and the episode ends where the run
     does (terminated where the generator found no view worth a scan, truncated at max_scans)."""
+    if overrides:  # runs that stop for want of a view adding min_gain
+        env = ReconstructEnv(TWO, config, overrides, info_scores=True)
+        config = env.config
     mug = builtin_sources(config.mesh)[0]
     assert mug.name == "builtin:mug"
     generate([mug], tmp_path, config, show_progress=False)
@@ -141,6 +146,7 @@ def test_info_scores_equal_the_generators_shard_rows(env, config, tmp_path):
         rows = {name: shard[name] for name in ("run", "step", "gains", "overlaps", "nbv_index", "coverage",
                                               "last_view")}
         grids = shard.grids()
+    stopped = 0
     for run in range(config.episode.runs_per_mesh):
         mine = np.flatnonzero(rows["run"] == run)
         start = start_view(config.episode.seed, mug.mesh_id, config.views.count, run)
@@ -159,6 +165,8 @@ def test_info_scores_equal_the_generators_shard_rows(env, config, tmp_path):
             assert len(steps) == len(mine) and steps[-1][3] and not steps[-1][2]
         else:  # the run stopped: the state after its last move had no view worth a scan
             assert len(steps) == len(mine) + 1 and steps[-1][2] and steps[-1][-1]["nbv"] == -1
+            stopped += 1
+    assert stopped == (config.episode.runs_per_mesh if overrides else 0)
 
 
 def test_the_same_seed_gives_the_same_trajectory(config):
