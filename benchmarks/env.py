@@ -15,6 +15,8 @@ points, up to 10 scans):
 3. one env and ``AsyncVectorEnv`` of 2 (forkserver): ``--episodes`` episodes per
    environment following the oracle from seeded starts, after one reset per mesh (scene builds
    left out); environment steps per second, the vector env's counting both.
+4. one env, random candidate views on the first mesh once every view was scanned (the view cache
+   full, as it soon is for a learner on a fixed set of meshes): ``10 * --episodes`` episodes.
 
     python benchmarks/env.py [--runs 3] [--train-meshes 4] [--episodes 12] [--set KEY=VALUE ...]
 
@@ -112,6 +114,27 @@ def _episodes_vector(make, meshes: int, episodes: int) -> tuple[float, int]:
         vector.close()
 
 
+def _warm_random(make, episodes: int) -> tuple[float, int]:
+    """(seconds, steps) of ``episodes`` random-view episodes on the first mesh after every
+    candidate view was scanned once (the view cache full): a learner's steady state."""
+    env = make()
+    views, view = env.action_space.n, 0
+    while view < views:
+        env.reset(options={"mesh": 0})
+        done = False
+        while not done and view < views:
+            _, _, terminated, truncated, _ = env.step(view)
+            view, done = view + 1, terminated or truncated
+    rng, steps, began = np.random.default_rng(0), 0, time.perf_counter()
+    for episode in range(episodes):
+        env.reset(seed=episode, options={"mesh": 0})
+        done = False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(int(rng.integers(views)))
+            steps, done = steps + 1, terminated or truncated
+    return time.perf_counter() - began, steps
+
+
 class _Make:
     """A picklable environment factory (forkserver children build their own)."""
 
@@ -143,6 +166,9 @@ def _bench(label: str, meshes, sources, args) -> None:
         seconds, steps = run(_Make(meshes, config), len(sources), args.episodes)
         print(f"| {name}: oracle episodes, steps | {steps} | {seconds:.2f} | {steps / seconds:.0f} | "
               f"{1e3 * seconds / steps:.2f} |")
+    seconds, steps = _warm_random(_Make(meshes, config), 10 * args.episodes)
+    print(f"| one env: random views, every view scanned before ({sources[0].name}), steps | {steps} | "
+          f"{seconds:.2f} | {steps / seconds:.0f} | {1e3 * seconds / steps:.2f} |")
     print(f"env cost per state / generator's: {env_ms / gen_ms:.2f}x ({verdict} the target <= 1.5x)")
 
 
