@@ -344,6 +344,11 @@ def load_config(cls: type, path: str | Path | None = None, overrides: list[str] 
             raise ConfigError(f"config file {path} is not valid YAML: {error}".splitlines()[0]) from None
         if not isinstance(data, dict):
             raise ConfigError(f"config file {path}: the top level must be a mapping of sections")
+    return from_dict(cls, apply_overrides(data, overrides))
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """``data`` (nested sections, changed in place) with each ``section.key=value`` set."""
     for text in overrides:
         keys, value = parse_override(text)
         node = data
@@ -352,4 +357,4 @@ def load_config(cls: type, path: str | Path | None = None, overrides: list[str] 
             if not isinstance(node, dict):
                 raise ConfigError(f"--set {text!r}: '{key}' is a value, not a section")
         node[keys[-1]] = value
-    return from_dict(cls, data)
+    return data

@@ -73,14 +73,16 @@ class Reconstruction:
         self.covered = np.zeros(scene.oracle.visible.shape[1], dtype=np.uint64)
         self.scans = 0
 
-    def scan(self, view: int) -> None:
-        """Scan from candidate ``view`` and integrate the scan."""
-        if self.cache is not None:
-            self.grid.apply(self.cache.update(view))
-            self.covered |= self.scene.oracle.visible[view]
-            self.scans += 1
-        else:
-            self.scan_pose(self.scene.views[view])
+    def scan(self, view: int) -> np.ndarray:
+        """Scan from candidate ``view`` and integrate the scan; returns the (W,) packed reference
+        points this scan covered (noise-free: the view's row of the oracle's bit matrix)."""
+        if self.cache is None:
+            return self.scan_pose(self.scene.views[view])
+        self.grid.apply(self.cache.update(view))
+        seen = self.scene.oracle.visible[view]
+        self.covered |= seen
+        self.scans += 1
+        return seen
 
     def scan_pose(self, pose: Pose) -> np.ndarray:
         """Scan from any pose (a network's continuous prediction, say), cast live, and integrate;

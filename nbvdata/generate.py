@@ -38,7 +38,7 @@ import yaml
 
 from nbvdata import __version__
 from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials, write_atomic
-from nbvdata.config import ConfigError, MeshConfig, SimConfig
+from nbvdata.config import ConfigError, GenerateConfig, MeshConfig, SimConfig
 from nbvdata.episode import Mover, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
 from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
@@ -226,6 +226,37 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
     return result
 
 
+class SceneCache:
+    """The scenes of the last ``size`` meshes asked for (None: of every mesh), each with its mesh
+    and, for a noise-free sensor, its view cache: (mesh, scene, view cache) by (mesh source, data
+    settings, threads). Everything in a scene is a function of the mesh, the data settings (all but
+    ``generate``) and the seed, so taking it from here changes no byte. Not thread-safe: a view
+    cache has scratch buffers."""
+
+    def __init__(self, size: int | None):
+        self.size = size
+        self._entries: OrderedDict = OrderedDict()
+
+    def get(self, source: MeshSource, config: SimConfig, threads: int = 0) -> tuple[ObjectMesh, Scene, ViewCache | None]:
+        """The entry of ``source`` under ``config``: built here (``threads`` > 0 limits the ray
+        casting threads), or the one kept."""
+        key = (source, dataclasses.replace(config, generate=GenerateConfig()), threads)
+        if key in self._entries:
+            self._entries.move_to_end(key)
+            return self._entries[key]
+        obj = source.load(config.mesh)
+        scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
+        entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
+        if self.size is None or self.size > 0:
+            self._entries[key] = entry
+            while self.size is not None and len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+        return entry
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
 # Scenes of the meshes this thread ran last: the units of one mesh (runs_per_shard > 0) come one
 # after another, so a worker casts each mesh's scene once, not once per unit. Per thread, since a
 # scene's view cache has scratch buffers (the threading backend runs units side by side).
@@ -234,22 +265,11 @@ _SCENES = threading.local()
 
 
 def _mesh_scene(source: MeshSource, config: SimConfig, threads: int) -> tuple[ObjectMesh, Scene, ViewCache | None]:
-    """(mesh, scene, view cache) of ``source`` under ``config``'s data settings: built here, or
-    reused from this thread's last ``SCENE_CACHE_SIZE`` meshes (everything in them is a function
-    of the mesh, the data settings and the seed, so reuse changes no byte)."""
-    scenes = _SCENES.__dict__.setdefault("scenes", OrderedDict())
-    key = (source, yaml.safe_dump(config.dataset_dict(), sort_keys=True), threads)
-    if key in scenes:
-        scenes.move_to_end(key)
-        return scenes[key]
-    obj = source.load(config.mesh)
-    scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
-    entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
-    if SCENE_CACHE_SIZE > 0:
-        scenes[key] = entry
-        while len(scenes) > SCENE_CACHE_SIZE:
-            scenes.popitem(last=False)
-    return entry
+    """(mesh, scene, view cache) of ``source`` under ``config``'s data settings, from this
+    thread's ``SceneCache`` of ``SCENE_CACHE_SIZE`` meshes."""
+    if not hasattr(_SCENES, "cache"):
+        _SCENES.cache = SceneCache(SCENE_CACHE_SIZE)
+    return _SCENES.cache.get(source, config, threads)
 
 
 def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh_id: str) -> dict[str, np.ndarray]:

@@ -41,6 +41,14 @@ def popcount(bits: np.ndarray) -> int:
     return int(np.bitwise_count(bits).sum(dtype=np.int64))
 
 
+def overlap(seen: np.ndarray, covered: np.ndarray) -> float:
+    """|seen & covered| / |seen| of two (W,) packed point masks (0 when ``seen`` is empty): the
+    overlap of what a scan actually covered, ``seen``, with what was covered before it; for a
+    candidate view's noise-free scan (seen = O_v) it is that view's overlap(v)."""
+    count = popcount(seen)
+    return popcount(seen & covered) / count if count else 0.0
+
+
 @dataclass(frozen=True)
 class Scores:
     """Every candidate view scored at one state.

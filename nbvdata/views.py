@@ -164,6 +164,19 @@ def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
     return ViewSet(positions, look_at_rotations(positions))
 
 
+def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
+    """(V,) bool: the candidate views (unit directions (V, 3)) nearest in direction to each of
+    the scanned sensor positions (P, 3) (object-centred; any radius). A pose on a candidate
+    view marks exactly that view; a pose between views marks the nearest one."""
+    taken = np.zeros(len(view_units), dtype=bool)
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if len(positions):
+        norms = np.linalg.norm(positions, axis=1, keepdims=True)
+        directions = positions / np.where(norms > 0, norms, 1.0)
+        taken[np.argmax(directions @ np.asarray(view_units, dtype=np.float64).T, axis=1)] = True
+    return taken
+
+
 def parse_view_indices(text: str, count: int, flag: str, example: str) -> list[int]:
     """Comma-separated view indices ("3,41,120") of a view set of ``count`` -> [3, 41, 120];
     ValueError with a one-line message naming the option ``flag`` (and ``example``, a valid

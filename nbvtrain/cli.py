@@ -177,9 +177,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from nbvtrain.planners import PLANNERS, build_planners
 
     names = [name.strip() for name in args.planners.split(",") if name.strip()]
-    unknown = [name for name in names if name not in PLANNERS]
+    unknown = [name for name in names if name not in PLANNERS and ":" not in name]
     if unknown or not names:
-        raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}")
+        raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}, or a policy "
+                          "module:function")
     if args.scans < 2:
         raise ConfigError(f"--scans {args.scans}: must be >= 2 (the start scan and at least one planned one)")
     if args.starts < 0:
@@ -347,7 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "is released: without one the classification planner is skipped)")
     evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
                           help="comma-separated, of scores,regression,classification,infogain,oracle,random "
-                          "(default all)")
+                          "(default all), and policies on nbvdata.env's observation as module:function or "
+                          "path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
                           "-nostall; off = the paper's behaviour)")

@@ -52,7 +52,7 @@ from nbvdata.config import SimConfig, to_dict
 from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.generate import MeshSource
 from nbvdata.mesh import MeshError
-from nbvdata.oracle import popcount
+from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
 from nbvtrain.planners import Observation, Planner
 
@@ -104,13 +104,6 @@ def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_r
     order = evaluation_rng(seed, mesh_id).permutation(count)
     free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
     return [front] + [free[k % len(free)] for k in range(starts)]
-
-
-def overlap(seen: np.ndarray, covered: np.ndarray) -> float:
-    """|seen & covered| / |seen| of two (W,) packed point masks (0 when ``seen`` is empty):
-    the oracle's overlap, for what a scan actually covered."""
-    count = popcount(seen)
-    return popcount(seen & covered) / count if count else 0.0
 
 
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:

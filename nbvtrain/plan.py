@@ -37,10 +37,9 @@ from scipy.spatial.transform import Rotation
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
-from nbvdata.views import Pose, ViewSet, look_at_rotations, view_sphere
+from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, view_sphere
 from nbvtrain.predict import NBVPrediction, Predictor, candidate_fields
 from nbvtrain.release import released_checkpoint
-from nbvtrain.scores import scanned_views
 from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
@@ -254,7 +253,7 @@ class NetworkPlanner:
 
 class ScorePlanner(NetworkPlanner):
     """A candidate-score checkpoint: the best-scoring candidate view not taken by a scan (each scan's
-    sensor position marks its nearest candidate view, ``nbvtrain.scores.scanned_views``; an
+    sensor position marks its nearest candidate view, ``nbvdata.views.scanned_views``; an
     OctoMap has no scans, so none is marked)."""
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
@@ -263,7 +262,7 @@ class ScorePlanner(NetworkPlanner):
 
 def scanned_state(taken: np.ndarray | None, view_units: np.ndarray | None) -> np.ndarray | None:
     """(V,) bool the candidate views the scans at ``taken`` ((S, 3) sensor positions, object
-    frame) marked (``nbvtrain.scores.scanned_views``); None without scans or candidate views."""
+    frame) marked (``nbvdata.views.scanned_views``); None without scans or candidate views."""
     return None if taken is None or view_units is None else scanned_views(taken, view_units)
 
 

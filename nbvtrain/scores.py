@@ -68,16 +68,3 @@ def pick(scores: np.ndarray | torch.Tensor, taken: np.ndarray | torch.Tensor) ->
     taken = torch.as_tensor(taken, dtype=torch.bool)
     full = taken.all(dim=1, keepdim=True)
     return scores.masked_fill(taken & ~full, float("-inf")).argmax(dim=1).cpu().numpy()
-
-
-def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
-    """(V,) bool: the candidate views (unit directions (V, 3)) nearest in direction to each of
-    the scanned sensor positions (P, 3) (object-centred; any radius). A pose on a candidate
-    view marks exactly that view; a pose between views marks the nearest one."""
-    taken = np.zeros(len(view_units), dtype=bool)
-    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    if len(positions):
-        norms = np.linalg.norm(positions, axis=1, keepdims=True)
-        directions = positions / np.where(norms > 0, norms, 1.0)
-        taken[np.argmax(directions @ np.asarray(view_units, dtype=np.float64).T, axis=1)] = True
-    return taken

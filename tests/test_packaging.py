@@ -54,3 +54,25 @@ def test_ci_runs_the_readme_commands():
     ci = (ROOT / ".ci" / "run").read_text().splitlines()
     command = ci[ci.index("# The README's test command:") + 1]
     assert test.endswith(" && " + command) and command.startswith("pip install")
+
+
+def test_gymnasium_is_an_optional_extra_that_nbvdata_env_names():
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert not [dep for dep in project["dependencies"] if dep.startswith("gymnasium")]
+    extras = project["optional-dependencies"]
+    assert "gymnasium>=1.0" in extras["rl"] and "gymnasium>=1.0" in extras["test"]
+    done = _python(
+        "sys.modules['gymnasium'] = None\n"
+        "import pkgutil, importlib, nbvdata\n"
+        "for m in pkgutil.iter_modules(nbvdata.__path__, 'nbvdata.'):\n"
+        "    if m.name not in ('nbvdata.__main__', 'nbvdata.env'):\n"
+        "        importlib.import_module(m.name)\n"
+        "try:\n"
+        "    import nbvdata.env\n"
+        "except ImportError as error:\n"
+        "    print(error)\n")
+    assert done.returncode == 0, done.stderr
+    message = done.stdout.strip()
+    assert len(message.splitlines()) == 1 and message.startswith("nbvdata.env needs gymnasium")
+    assert 'pip install -e ".[rl]"' in message

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from nbvdata.views import sphere_positions
+from nbvdata.views import scanned_views, sphere_positions
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import MODELS, ScoreNet, build_model, parameter_count
-from nbvtrain.scores import SCORE_LOSSES, pick, scanned_views, score_loss, targets
+from nbvtrain.scores import SCORE_LOSSES, pick, score_loss, targets
 
 
 def test_the_registry_builds_the_score_family():
