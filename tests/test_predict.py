@@ -5,6 +5,7 @@ a one-line error, and inference builds no deprecated torch.jit modules."""
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,8 @@ def test_a_pickled_object_is_refused_and_its_code_never_runs(tmp_path, capsys):
     evil = tmp_path / "evil.pt"
     torch.save(state | {"history": [WritesAFile(marker)]}, evil)
     np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
-    with pytest.raises(CheckpointError, match=r"evil\.pt: refused: it holds a pickled Python object \(io\.open\)"):
+    with pytest.raises(CheckpointError, match=r"evil\.pt: holds a pickled Python object \(io\.open; not plain "
+                       r"tensors\); refused without running it; pass a checkpoint"):
         Predictor(evil)
     assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(evil)]) == 2
     _one_line_error(capsys, str(evil), "refused", "nbvtrain fit")
@@ -207,3 +209,59 @@ def test_predict_builds_no_torch_jit_and_warns_nothing(tmp_path):
     with torch.inference_mode():
         grids = torch.from_numpy(grid)[None, None]
         torch.testing.assert_close(predictor._features(grids), predictor.model.features(grids), atol=1e-6, rtol=0)
+
+
+# ---- checkpoint refusals say what the file is ----------------------------------------------------------------
+
+
+def test_a_text_file_is_not_a_pytorch_checkpoint(tmp_path, capsys):
+    """'j' is a pickle opcode: torch once read 'just ...' as a memo key (KeyError: 544502645)."""
+    path = tmp_path / "notes.pt"
+    path.write_text("just a note about the run\n")
+    with pytest.raises(CheckpointError) as refused:
+        load_checkpoint(path)
+    assert str(refused.value) == (f"{path}: not a PyTorch checkpoint (a text file); pass a checkpoint written by "
+                                  "nbvtrain fit (runs/NAME/best.pt)")
+
+
+@pytest.mark.parametrize("protocol", [2, 4, 5])
+def test_a_pickle_holding_an_object_is_refused_in_a_whole_sentence(protocol, tmp_path, capsys):
+    import pickle
+
+    marker = tmp_path / "ran"
+    path = tmp_path / "evil.pt"
+    with path.open("wb") as handle:
+        pickle.dump({"model": "nbvnet-3-3", "history": [WritesAFile(marker)]}, handle, protocol=protocol)
+    with pytest.raises(CheckpointError) as refused, warnings.catch_warnings(record=True) as warned:
+        warnings.simplefilter("always")
+        load_checkpoint(path)
+    assert not warned, [str(w.message) for w in warned]  # the one line is all the command prints
+    assert str(refused.value) == (f"{path}: holds a pickled Python object (io.open; not plain tensors); refused "
+                                  "without running it; pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+    assert not marker.exists()
+
+
+def test_a_pickle_of_plain_data_is_not_a_pytorch_checkpoint(tmp_path):
+    import pickle
+
+    path = tmp_path / "plain.pt"
+    path.write_bytes(pickle.dumps({"model": "nbvnet-3-3", "epoch": 3}))
+    with pytest.raises(CheckpointError, match=r"plain\.pt: not a PyTorch checkpoint \(a Python pickle, not written "
+                       r"by torch\.save\)"):
+        load_checkpoint(path)
+
+
+@pytest.mark.parametrize("kind", JUNK + ["cut short"])
+def test_no_refusal_suggests_loading_unsafely_or_stops_mid_word(kind, tmp_path):
+    path = tmp_path / "junk.pt"
+    if kind == "cut short":
+        whole = _checkpoint(tmp_path / "whole.pt").read_bytes()
+        path.write_bytes(whole[: len(whole) // 2])
+    else:
+        _junk(kind, path)
+    with pytest.raises(CheckpointError) as refused:
+        Predictor(path)
+    message = str(refused.value)
+    assert "weights_only" not in message and "allow" not in message and "Weights only load failed" not in message
+    assert message.endswith("; pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+    assert message.count("(") == message.count(")"), message  # nothing cut off inside a bracket
