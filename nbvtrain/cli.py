@@ -131,7 +131,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"nbvtrain plan: note: the map's voxels ({result.octomap['resolution']:g} m) are not the grid's "
               f"({answer['grid']['voxel']:.4g} m, corner on a key boundary): each grid voxel took the map's leaf at "
               "its centre", file=sys.stderr)
-    text = json.dumps(answer, indent=2)
+    text = json.dumps(answer, indent=2, allow_nan=False)
     for path, write in ((args.out, lambda p: p.write_text(text + "\n")),
                         (args.save_grid, lambda p: np.save(p, result.grid)),
                         (args.png, lambda p: render_plan(result, p))):

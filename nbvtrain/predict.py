@@ -189,4 +189,4 @@ def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str
                  "scanned": [] if taken is None else np.flatnonzero(taken).tolist()}
     return json.dumps({"source": source, "checkpoint": str(predictor.path), "model": predictor.name,
                        "epoch": predictor.epoch, "radius": predictor.radius, "k": predictor.k, **extra,
-                       **prediction.to_dict()}, indent=2)
+                       **prediction.to_dict()}, indent=2, allow_nan=False)

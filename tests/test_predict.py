@@ -211,6 +211,23 @@ def test_predict_builds_no_torch_jit_and_warns_nothing(tmp_path):
         torch.testing.assert_close(predictor._features(grids), predictor.model.features(grids), atol=1e-6, rtol=0)
 
 
+def test_every_json_the_package_writes_refuses_nan():
+    """json.dumps(..., allow_nan=False) wherever the package prints or writes JSON."""
+    import ast
+
+    calls = 0
+    for path in sorted((ROOT / "nbvdata").glob("*.py")) + sorted((ROOT / "nbvtrain").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in ("dump", "dumps") and isinstance(node.func.value, ast.Name)
+                    and node.func.value.id == "json"):
+                calls += 1
+                strict = [k for k in node.keywords if k.arg == "allow_nan" and isinstance(k.value, ast.Constant)
+                          and k.value.value is False]
+                assert strict, f"{path.name}:{node.lineno}: json.{node.func.attr} without allow_nan=False"
+    assert calls >= 8  # the walk found the package's JSON
+
+
 # ---- checkpoint refusals say what the file is ----------------------------------------------------------------
 
 
