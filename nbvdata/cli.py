@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata import __version__
+from nbvdata.commandline import Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int
 from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
@@ -152,10 +153,6 @@ def cmd_import_legacy(args: argparse.Namespace) -> int:
     """Stream the authors' published dataset (.zip or .npy) into shards; resumes an interrupted import."""
     from nbvdata.legacy import import_legacy
 
-    if args.rows_per_shard < 1:
-        raise UsageError(f"--rows-per-shard {args.rows_per_shard}: must be >= 1")
-    if args.limit is not None and args.limit < 1:
-        raise UsageError(f"--limit {args.limit}: must be >= 1 (leave it out to import every row)")
     try:
         report = import_legacy(args.volumes, args.poses, args.out, args.rows_per_shard, args.limit,
                                show_progress=args.progress)
@@ -343,9 +340,9 @@ def _load_grid_file(path: Path, size: int) -> np.ndarray:
     return array.reshape(size, size, size).astype(np.float32)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> Parser:
+    parser = Parser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"nbvdata {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
@@ -355,15 +352,15 @@ def build_parser() -> argparse.ArgumentParser:
                      "file, or a .txt list of files; default: the built-in shapes")
     gen.add_argument("--out", type=Path, default=Path("nbv_dataset"), help="output folder (default nbv_dataset)")
     _add_config_options(gen)
-    gen.add_argument("--workers", type=int, help="parallel workers, 0 = one per core (generate.workers)")
-    gen.add_argument("--runs-per-mesh", type=int, help="runs per mesh (episode.runs_per_mesh)")
-    gen.add_argument("--seed", type=int, help="global seed (episode.seed)")
-    gen.add_argument("--explore", type=float, metavar="EPSILON", help="probability that a move goes to a random "
+    gen.add_argument("--workers", type=non_negative_int, help="parallel workers, 0 = one per core (generate.workers)")
+    gen.add_argument("--runs-per-mesh", type=positive_int, help="runs per mesh (episode.runs_per_mesh)")
+    gen.add_argument("--seed", type=non_negative_int, help="global seed (episode.seed)")
+    gen.add_argument("--explore", type=fraction, metavar="EPSILON", help="probability that a move goes to a random "
                      "valid view instead of the NBV; every state is still labelled exactly (episode.explore, "
                      "default 0)")
     gen.add_argument("--policy", type=Path, metavar="CHECKPOINT", help="runs move where this trained planner "
                      "(nbvtrain fit's best.pt) would, every state labelled exactly: a DAgger round; needs torch")
-    gen.add_argument("--oracle-mix", type=float, metavar="BETA", help="with --policy: probability that a move "
+    gen.add_argument("--oracle-mix", type=fraction, metavar="BETA", help="with --policy: probability that a move "
                      "follows the oracle instead (episode.oracle_mix, default 0)")
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],
                      help="joblib backend (generate.backend)")
@@ -374,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
-    inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
+    inspect.add_argument("--top", type=non_negative_int, default=10, help="most frequent NBVs to list")
     inspect.add_argument("--by-step", action="store_true",
                          help="also the grids' occupied, unknown and corner-unknown voxels and the occupied span "
                          "per reconstruction step, beside the authors' published grids (reads every grid)")
@@ -391,10 +388,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="folder of manifests and cards (default manifests)")
     pub.add_argument("--meshes", type=Path, help="folder the mesh files came from: every MESHES.tsv in it "
                      "(columns file, license_or_origin) gives their licenses")
-    pub.add_argument("--seed", type=int, default=0, help="seed of both splits (default 0)")
-    pub.add_argument("--val-fraction", type=float, default=0.2,
+    pub.add_argument("--seed", type=non_negative_int, default=0, help="seed of both splits (default 0)")
+    pub.add_argument("--val-fraction", type=fraction, default=0.2,
                      help="share of samples (random split) and of meshes (mesh split) for validation (default 0.2)")
-    pub.add_argument("--test-fraction", type=float, default=0.2,
+    pub.add_argument("--test-fraction", type=fraction, default=0.2,
                      help="share of meshes held out for test in the mesh split (default 0.2)")
     pub.set_defaults(func=cmd_publish)
 
@@ -410,21 +407,21 @@ def build_parser() -> argparse.ArgumentParser:
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",
                       help="a shard (.h5; pick the sample with --index) or a .npy grid (n^3 values, authors' encoding)")
-    show.add_argument("--index", type=int, default=0, help="sample of the shard to render (default 0)")
-    show.add_argument("--top", type=int, default=5, help="runner-up candidate views to draw (orange)")
+    show.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard to render (default 0)")
+    show.add_argument("--top", type=non_negative_int, default=5, help="runner-up candidate views to draw (orange)")
     _add_object_options(show)
     _add_config_options(show)
     show.add_argument("--views", default="0", help="without a grid file: views to scan from, e.g. 0,120,340")
-    show.add_argument("--highlight", type=int, help="index of the view to draw as a red arrow")
-    show.add_argument("--seed", type=int, default=0, help="seed for sensor noise")
+    show.add_argument("--highlight", type=non_negative_int, help="index of the view to draw as a red arrow")
+    show.add_argument("--seed", type=non_negative_int, default=0, help="seed for sensor noise")
     show.add_argument("--out", type=Path, default=Path("nbv_show.png"), help="PNG to write")
     show.set_defaults(func=cmd_show)
 
     demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
     _add_object_options(demo)
     _add_config_options(demo)
-    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
-    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
+    demo.add_argument("--scans", type=positive_int, default=4, help="number of scans (default 4)")
+    demo.add_argument("--seed", type=non_negative_int, default=0, help="seed for the views, noise and reference points")
     demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
     demo.set_defaults(func=cmd_demo)
 
@@ -433,14 +430,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
     legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
     legacy.add_argument("--out", type=Path, required=True, help="output folder")
-    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
-    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
+    legacy.add_argument("--rows-per-shard", type=positive_int, default=2048, help="rows per shard (default 2048)")
+    legacy.add_argument("--limit", type=positive_int, help="import only the first N rows (for tests and tries)")
     legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show a progress bar (default: on a terminal)")
     legacy.set_defaults(func=cmd_import_legacy)
     return parser
 
 
+@exit_quietly_when_stdout_closes
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

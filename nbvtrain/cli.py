@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nbvdata.commandline import (Integer, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
+                                  non_negative_int, positive_float, positive_int)
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
@@ -179,12 +181,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     unknown = [name for name in names if name not in PLANNERS]
     if unknown or not names:
         raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}")
-    if args.scans < 2:
-        raise ConfigError(f"--scans {args.scans}: must be >= 2 (the start scan and at least one planned one)")
-    if args.starts < 0:
-        raise ConfigError(f"--starts {args.starts}: must be >= 0 (0 = only the view in front)")
-    if args.workers < 0:
-        raise ConfigError(f"--workers {args.workers}: must be >= 0 (0 = one per core)")
     config = load_config(SimConfig, args.config, args.overrides)
     try:
         sources, failures = mesh_sources(args.meshes)
@@ -226,11 +222,11 @@ def cmd_release(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> Parser:
     from nbvtrain.models import MODELS
 
     summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
-    parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
+    parser = Parser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -243,24 +239,24 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
     fit.add_argument("--model", choices=list(MODELS), help="network (default nbvnet-4-5)")
-    fit.add_argument("--epochs", type=int, help="total epochs (default 600)")
-    fit.add_argument("--batch-size", type=int, help="samples per step (default 250)")
-    fit.add_argument("--lr", type=float, help="Adam learning rate (default 1e-4)")
+    fit.add_argument("--epochs", type=positive_int, help="total epochs (default 600)")
+    fit.add_argument("--batch-size", type=positive_int, help="samples per step (default 250)")
+    fit.add_argument("--lr", type=positive_float, help="Adam learning rate (default 1e-4)")
     fit.add_argument("--lr-schedule", choices=["constant", "cosine"], help="constant (paper, default) or cosine "
                      "decay to 0 over the epochs")
     fit.add_argument("--score-loss", choices=["listwise", "regression", "argmax"], help="score networks "
                      "(nbvscore-*): the loss over every candidate view's gain (default listwise)")
-    fit.add_argument("--dropout", type=float, help="dropout probability (default 0.5)")
+    fit.add_argument("--dropout", type=fraction, help="dropout probability (default 0.5)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")
     fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out; "
                      "with a manifest, its split of that kind")
-    fit.add_argument("--val-fraction", type=float, help="share held out for validation (default 0.2)")
+    fit.add_argument("--val-fraction", type=fraction, help="share held out for validation (default 0.2)")
     fit.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
                      help="rotate grids and targets by random quarter turns about z")
-    fit.add_argument("--seed", type=int, help="seed of split, weights, batches, dropout (default 0)")
+    fit.add_argument("--seed", type=non_negative_int, help="seed of split, weights, batches, dropout (default 0)")
     fit.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default auto")
-    fit.add_argument("--threads", type=int, help="torch CPU threads (default: one per core)")
+    fit.add_argument("--threads", type=non_negative_int, help="torch CPU threads (default: one per core)")
     fit.add_argument("--out", type=Path, help="run folder (default runs/MODEL)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     fit.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -269,14 +265,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
     predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
-    predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
+    predict.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
                          "released score network)")
     predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
                          "from the shard's run for a shard sample, none for a .npy grid)")
-    predict.add_argument("--k", type=float, default=1.0, help="scale of the position beyond the view sphere "
+    predict.add_argument("--k", type=positive_float, default=1.0, help="scale of the position beyond the view sphere "
                          "(paper: 2.5 for its 1 m robot scene)")
-    predict.add_argument("--radius", type=float, help="view sphere radius, metres (default: the training data's)")
+    predict.add_argument("--radius", type=positive_float, help="view sphere radius, metres (default: the training "
+                         "data's)")
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
 
@@ -292,14 +289,14 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--octomap", type=Path, help="an OctoMap in the world frame (.bt or .ot)")
     plan.add_argument("--center", required=True, help="the object's centre x,y,z, world frame, metres "
                       "(write --center=-1,2,3 when it starts with a minus)")
-    plan.add_argument("--size", type=float, help="the object's largest side, metres (default: the training scene's "
-                      "mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
+    plan.add_argument("--size", type=positive_float, help="the object's largest side, metres (default: the training "
+                      "scene's mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
     plan.add_argument("--up", default="z", help="the world's vertical: x, y, z, -x, -y, -z or a vector a,b,c "
                       "(default z)")
     plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit, regression or classification "
                       "(default: the released model)")
-    plan.add_argument("--max-range", type=float, help="with --scans: metres from the sensor beyond which a point "
-                      "marks nothing occupied and carves free space to that range (default sensor.far x k)")
+    plan.add_argument("--max-range", type=positive_float, help="with --scans: metres from the sensor beyond which a "
+                      "point marks nothing occupied and carves free space to that range (default sensor.far x k)")
     plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
                       "the default scene)")
     plan.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -314,9 +311,9 @@ def build_parser() -> argparse.ArgumentParser:
     baselines = sub.add_parser("baselines", help="mean-direction and nearest-neighbour scores on a split")
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     baselines.add_argument("--split", choices=["random", "mesh"], default="random")
-    baselines.add_argument("--val-fraction", type=float, default=0.2)
-    baselines.add_argument("--seed", type=int, default=0)
-    baselines.add_argument("--memory-limit-gb", type=float, default=8.0)
+    baselines.add_argument("--val-fraction", type=fraction, default=0.2)
+    baselines.add_argument("--seed", type=non_negative_int, default=0)
+    baselines.add_argument("--memory-limit-gb", type=non_negative_float, default=8.0)
     baselines.set_defaults(func=cmd_baselines)
 
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
@@ -332,15 +329,18 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
                           "-nostall; off = the paper's behaviour)")
-    evaluate.add_argument("--scans", type=int, default=10, help="scans per reconstruction, the start included (10)")
-    evaluate.add_argument("--starts", type=int, default=0, help="random start views per object besides the front one")
-    evaluate.add_argument("--seed", type=int, default=0, help="seed of start views, reference points, random planner")
+    evaluate.add_argument("--scans", type=Integer(2), default=10, help="scans per reconstruction, the start and at "
+                          "least one planned one (default 10)")
+    evaluate.add_argument("--starts", type=non_negative_int, default=0,
+                          help="random start views per object besides the front one")
+    evaluate.add_argument("--seed", type=non_negative_int, default=0,
+                          help="seed of start views, reference points, random planner")
     evaluate.add_argument("--out", type=Path, default=Path("runs/evaluate"), help="output folder (runs/evaluate)")
     evaluate.add_argument("--config", type=Path, help="YAML of simulation settings (as nbvdata; configs/smoke.yaml)")
     evaluate.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                           help="override one simulation setting, e.g. --set sensor.noise_std=0.001")
-    evaluate.add_argument("--workers", type=int, default=1, help="meshes evaluated at once, in processes of one "
-                          "thread each; the same outputs but timings (default 1; 0 = one per core)")
+    evaluate.add_argument("--workers", type=non_negative_int, default=1, help="meshes evaluated at once, in "
+                          "processes of one thread each; the same outputs but timings (default 1; 0 = one per core)")
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)
@@ -358,6 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@exit_quietly_when_stdout_closes
 def main(argv: list[str] | None = None) -> int:
     try:
         import torch  # noqa: F401  (nbvtrain's one optional dependency: nbvdata runs without it)
