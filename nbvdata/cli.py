@@ -25,6 +25,7 @@ from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
 from nbvdata.text import plural
+from nbvdata.userarrays import GridError, NpyError, check_grids, read_npy
 from nbvdata.views import parse_view_indices
 
 
@@ -267,7 +268,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     config = load_config(SimConfig, args.config, args.overrides)
     views = view_sphere(config.views)
     if args.grid is not None:
-        probabilities = _load_grid_file(args.grid, config.grid.size)
+        probabilities = _load_grid_file(args.grid, config.grid.size, args.index)
         title = args.grid.name
     else:
         from nbvdata.grid import OccupancyGrid
@@ -328,16 +329,18 @@ def _show_sample(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_grid_file(path: Path, size: int) -> np.ndarray:
-    if not path.is_file():
-        raise UsageError(f"{path}: no such file")
+def _load_grid_file(path: Path, size: int, index: int) -> np.ndarray:
+    """Grid ``index`` of a .npy file of one (n, n, n) grid or of (B, n, n, n) grids, checked as
+    ``nbvtrain predict`` checks them -> (n, n, n) float32."""
     try:
-        array = np.load(path, allow_pickle=False)
-    except Exception as error:
-        raise UsageError(f"{path}: not a readable .npy array ({type(error).__name__})") from None
-    if array.size != size ** 3:
-        raise UsageError(f"{path}: holds {plural(array.size, 'value')}, a {size}^3 grid needs {size ** 3}")
-    return array.reshape(size, size, size).astype(np.float32)
+        grids = check_grids(read_npy(path), size)
+    except NpyError as error:
+        raise UsageError(str(error)) from None
+    except GridError as error:
+        raise UsageError(f"{path}: {error}") from None
+    if not 0 <= index < len(grids):
+        raise UsageError(f"--index {index}: {path} holds {plural(len(grids), 'grid')} (0..{len(grids) - 1})")
+    return grids[index]
 
 
 def build_parser() -> Parser:
@@ -406,8 +409,11 @@ def build_parser() -> Parser:
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",
-                      help="a shard (.h5; pick the sample with --index) or a .npy grid (n^3 values, authors' encoding)")
-    show.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard to render (default 0)")
+                      help="a shard (.h5; pick the sample with --index) or a .npy of one (n, n, n) grid or of "
+                      "(B, n, n, n) grids (pick one with --index), float probabilities in [0, 1], 0.5 = unknown "
+                      "(the authors' encoding); n = grid.size, 32 by default")
+    show.add_argument("--index", type=non_negative_int, default=0,
+                      help="sample of the shard, or grid of a (B, n, n, n) .npy, to render (default 0)")
     show.add_argument("--top", type=non_negative_int, default=5, help="runner-up candidate views to draw (orange)")
     _add_object_options(show)
     _add_config_options(show)

@@ -23,6 +23,7 @@ from nbvdata.commandline import (Integer, Parser, exit_quietly_when_stdout_close
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
+from nbvdata.userarrays import NpyError, read_npy
 from nbvtrain import __version__
 from nbvtrain.sensordata import SensorDataError
 
@@ -64,7 +65,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
-    from nbvtrain.predict import GridError, Predictor, prediction_json
+    from nbvtrain.predict import GridError, Predictor, prediction_dict
 
     from nbvtrain.release import released_checkpoint
 
@@ -73,14 +74,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     taken = None
     if args.grid.suffix == ".npy":
         try:
-            grid = np.load(args.grid)
-        except (OSError, ValueError) as error:
-            raise ShardError(f"{args.grid}: not a readable .npy grid ({error})") from None
-        if not isinstance(grid, np.ndarray):
-            raise ShardError(f"{args.grid}: holds several arrays (.npz), not one grid: np.save one 32^3 grid")
-        if grid.size != 32 ** 3:
-            raise ShardError(f"{args.grid}: holds {plural(grid.size, 'value')}, a grid has 32^3 = 32768")
-        grid, source = grid.reshape(32, 32, 32), str(args.grid)
+            grid, source = read_npy(args.grid), str(args.grid)
+        except NpyError as error:
+            raise ShardError(str(error)) from None
     else:
         with Shard(args.grid) as shard:
             if not 0 <= args.index < len(shard):
@@ -94,10 +90,15 @@ def cmd_predict(args: argparse.Namespace) -> int:
     if args.scanned is not None:
         taken = _scanned(args.scanned, predictor)
     try:
-        (prediction,) = predictor.predict(grid, taken)
+        predictions = predictor.predict(grid, taken)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
-    print(prediction_json(prediction, predictor, source, taken))
+    if grid.ndim == 3:  # one grid: one answer
+        answer = prediction_dict(predictions[0], predictor, source, taken)
+    else:  # (B, 32, 32, 32): a list of B answers, in order
+        answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken)
+                  for index, prediction in enumerate(predictions)]
+    print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
 
 
@@ -264,7 +265,8 @@ def build_parser() -> Parser:
     fit.set_defaults(func=cmd_fit)
 
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
-    predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
+    predict.add_argument("grid", type=Path, help="a .npy of one (32, 32, 32) grid or of (B, 32, 32, 32) grids "
+                         "(probabilities, 0.5 = unknown; B grids print a JSON list of B answers), or a shard")
     predict.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
                          "released score network)")
