@@ -231,7 +231,7 @@ def _reproduce(content: dict, policies: set[str] = frozenset()) -> str | None:
     else:
         return None
     defaults = SimConfig().dataset_dict()
-    changed = [f" --set {section}.{key}={value if isinstance(value, str) else json.dumps(value)}"
+    changed = [f" --set {section}.{key}={value if isinstance(value, str) else json.dumps(value, allow_nan=False)}"
                for section, values in content["config"].items() for key, value in values.items()
                if defaults.get(section, {}).get(key) != value]
     per_shard = max(stop - start for start, stop in (shard["runs"] for shard in content["shards"]))

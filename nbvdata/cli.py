@@ -18,12 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata import __version__
+from nbvdata.commandline import Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int
 from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
 from nbvdata.text import plural
+from nbvdata.userarrays import GridError, NpyError, check_grids, read_npy
 from nbvdata.views import parse_view_indices
 
 
@@ -156,10 +158,6 @@ def cmd_import_legacy(args: argparse.Namespace) -> int:
     """Stream the authors' published dataset (.zip or .npy) into shards; resumes an interrupted import."""
     from nbvdata.legacy import import_legacy
 
-    if args.rows_per_shard < 1:
-        raise UsageError(f"--rows-per-shard {args.rows_per_shard}: must be >= 1")
-    if args.limit is not None and args.limit < 1:
-        raise UsageError(f"--limit {args.limit}: must be >= 1 (leave it out to import every row)")
     try:
         report = import_legacy(args.volumes, args.poses, args.out, args.rows_per_shard, args.limit,
                                show_progress=args.progress)
@@ -277,7 +275,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     views = view_sphere(config.views)
     scanned: list[int] = []  # the views scanned from, drawn as orange arrows (none for a grid file)
     if args.grid is not None:
-        probabilities = _load_grid_file(args.grid, config.grid.size)
+        probabilities = _load_grid_file(args.grid, config.grid.size, args.index)
         title = args.grid.name
     else:
         from nbvdata.grid import OccupancyGrid
@@ -339,21 +337,23 @@ def _show_sample(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_grid_file(path: Path, size: int) -> np.ndarray:
-    if not path.is_file():
-        raise UsageError(f"{path}: no such file")
+def _load_grid_file(path: Path, size: int, index: int) -> np.ndarray:
+    """Grid ``index`` of a .npy file of one (n, n, n) grid or of (B, n, n, n) grids, checked as
+    ``nbvtrain predict`` checks them -> (n, n, n) float32."""
     try:
-        array = np.load(path, allow_pickle=False)
-    except Exception as error:
-        raise UsageError(f"{path}: not a readable .npy array ({type(error).__name__})") from None
-    if array.size != size ** 3:
-        raise UsageError(f"{path}: holds {plural(array.size, 'value')}, a {size}^3 grid needs {size ** 3}")
-    return array.reshape(size, size, size).astype(np.float32)
+        grids = check_grids(read_npy(path), size)
+    except NpyError as error:
+        raise UsageError(str(error)) from None
+    except GridError as error:
+        raise UsageError(f"{path}: {error}") from None
+    if not 0 <= index < len(grids):
+        raise UsageError(f"--index {index}: {path} holds {plural(len(grids), 'grid')} (0..{len(grids) - 1})")
+    return grids[index]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> Parser:
+    parser = Parser(prog="nbvdata", description=DESCRIPTION, epilog=EPILOG,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"nbvdata {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
@@ -363,10 +363,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "file, or a .txt list of files; default: the built-in shapes")
     gen.add_argument("--out", type=Path, default=Path("nbv_dataset"), help="output folder (default nbv_dataset)")
     _add_config_options(gen)
-    gen.add_argument("--workers", type=int, help="parallel workers, 0 = one per core (generate.workers)")
-    gen.add_argument("--runs-per-mesh", type=int, help="runs per mesh (episode.runs_per_mesh)")
-    gen.add_argument("--seed", type=int, help="global seed (episode.seed)")
-    gen.add_argument("--explore", type=float, metavar="EPSILON", help="probability that a move goes to a random "
+    gen.add_argument("--workers", type=non_negative_int, help="parallel workers, 0 = one per core (generate.workers)")
+    gen.add_argument("--runs-per-mesh", type=positive_int, help="runs per mesh (episode.runs_per_mesh)")
+    gen.add_argument("--seed", type=non_negative_int, help="global seed (episode.seed)")
+    gen.add_argument("--explore", type=fraction, metavar="EPSILON", help="probability that a move goes to a random "
                      "valid view instead of the NBV; every state is still labelled exactly (episode.explore, "
                      "default 0)")
     gen.add_argument("--policy", type=Path, metavar="CHECKPOINT", help="runs move where this trained planner "
@@ -374,7 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--policy-provider", metavar="NAME", help="with --policy: what makes a policy of that file, "
                      "a name registered in the nbvdata.policies entry-point group by an installed package "
                      "(default checkpoint: nbvtrain's trained networks)")
-    gen.add_argument("--oracle-mix", type=float, metavar="BETA", help="with --policy: probability that a move "
+    gen.add_argument("--oracle-mix", type=fraction, metavar="BETA", help="with --policy: probability that a move "
                      "follows the oracle instead (episode.oracle_mix, default 0)")
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],
                      help="joblib backend (generate.backend)")
@@ -385,7 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
-    inspect.add_argument("--top", type=int, default=10, help="most frequent NBVs to list")
+    inspect.add_argument("--top", type=non_negative_int, default=10, help="most frequent NBVs to list")
     inspect.add_argument("--by-step", action="store_true",
                          help="also the grids' occupied, unknown and corner-unknown voxels and the occupied span "
                          "per reconstruction step, beside the authors' published grids (reads every grid)")
@@ -402,10 +402,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="folder of manifests and cards (default manifests)")
     pub.add_argument("--meshes", type=Path, help="folder the mesh files came from: every MESHES.tsv in it "
                      "(columns file, license_or_origin) gives their licenses")
-    pub.add_argument("--seed", type=int, default=0, help="seed of both splits (default 0)")
-    pub.add_argument("--val-fraction", type=float, default=0.2,
+    pub.add_argument("--seed", type=non_negative_int, default=0, help="seed of both splits (default 0)")
+    pub.add_argument("--val-fraction", type=fraction, default=0.2,
                      help="share of samples (random split) and of meshes (mesh split) for validation (default 0.2)")
-    pub.add_argument("--test-fraction", type=float, default=0.2,
+    pub.add_argument("--test-fraction", type=fraction, default=0.2,
                      help="share of meshes held out for test in the mesh split (default 0.2)")
     pub.set_defaults(func=cmd_publish)
 
@@ -420,22 +420,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",
-                      help="a shard (.h5; pick the sample with --index) or a .npy grid (n^3 values, authors' encoding)")
-    show.add_argument("--index", type=int, default=0, help="sample of the shard to render (default 0)")
-    show.add_argument("--top", type=int, default=5, help="runner-up candidate views to draw (orange)")
+                      help="a shard (.h5; pick the sample with --index) or a .npy of one (n, n, n) grid or of "
+                      "(B, n, n, n) grids (pick one with --index), float probabilities in [0, 1], 0.5 = unknown "
+                      "(the authors' encoding); n = grid.size, 32 by default")
+    show.add_argument("--index", type=non_negative_int, default=0,
+                      help="sample of the shard, or grid of a (B, n, n, n) .npy, to render (default 0)")
+    show.add_argument("--top", type=non_negative_int, default=5, help="runner-up candidate views to draw (orange)")
     _add_object_options(show)
     _add_config_options(show)
     show.add_argument("--views", default="0", help="without a grid file: views to scan from, e.g. 0,120,340")
-    show.add_argument("--highlight", type=int, help="index of the view to draw as a red arrow")
-    show.add_argument("--seed", type=int, default=0, help="seed for sensor noise")
+    show.add_argument("--highlight", type=non_negative_int, help="index of the view to draw as a red arrow")
+    show.add_argument("--seed", type=non_negative_int, default=0, help="seed for sensor noise")
     show.add_argument("--out", type=Path, default=Path("nbv_show.png"), help="PNG to write")
     show.set_defaults(func=cmd_show)
 
     demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
     _add_object_options(demo)
     _add_config_options(demo)
-    demo.add_argument("--scans", type=int, default=4, help="number of scans (default 4)")
-    demo.add_argument("--seed", type=int, default=0, help="seed for the views, noise and reference points")
+    demo.add_argument("--scans", type=positive_int, default=4, help="number of scans (default 4)")
+    demo.add_argument("--seed", type=non_negative_int, default=0, help="seed for the views, noise and reference points")
     demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
     demo.set_defaults(func=cmd_demo)
 
@@ -444,14 +447,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
     legacy.add_argument("--poses", type=Path, required=True, help="dataset_pose.zip or .npy (N NBV poses)")
     legacy.add_argument("--out", type=Path, required=True, help="output folder")
-    legacy.add_argument("--rows-per-shard", type=int, default=2048, help="rows per shard (default 2048)")
-    legacy.add_argument("--limit", type=int, help="import only the first N rows (for tests and tries)")
+    legacy.add_argument("--rows-per-shard", type=positive_int, default=2048, help="rows per shard (default 2048)")
+    legacy.add_argument("--limit", type=positive_int, help="import only the first N rows (for tests and tries)")
     legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show a progress bar (default: on a terminal)")
     legacy.set_defaults(func=cmd_import_legacy)
     return parser
 
 
+@exit_quietly_when_stdout_closes
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -208,13 +208,13 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
             attrs = {
                 "package_version": __version__,
                 "config": yaml.safe_dump(config.dataset_dict(), sort_keys=False),
-                "meshes": json.dumps([{"id": mesh_id, "source": obj.source, "sha256": mesh_id}]),
+                "meshes": json.dumps([{"id": mesh_id, "source": obj.source, "sha256": mesh_id}], allow_nan=False),
                 "samples": len(arrays["nbv_index"]),
                 "runs": np.array(unit.runs, dtype=np.int64),
                 "source": GENERATED,
             }
             if policy is not None:
-                attrs["policy"] = json.dumps(dataclasses.replace(policy, name=planner.name).record())
+                attrs["policy"] = json.dumps(dataclasses.replace(policy, name=planner.name).record(), allow_nan=False)
             write_shard(out_dir / unit.shard_name, arrays, attrs, partial_path(out_dir / unit.shard_name))
         result.samples = len(arrays["nbv_index"])
     except MeshError as error:

@@ -320,7 +320,7 @@ def import_legacy(volumes: str | Path, poses: str | Path, out_dir: str | Path, r
                 attrs = {
                     "package_version": __version__,
                     "config": config,
-                    "meshes": json.dumps([]),
+                    "meshes": json.dumps([], allow_nan=False),
                     "samples": stop - first,
                     "runs": np.array([run[0], run[-1] + 1], dtype=np.int64),
                     "source": source,

@@ -535,10 +535,10 @@ def git_state() -> tuple[str | None, bool | None]:
 
 def dumps(content: dict) -> str:
     """The manifest as JSON: one key per line, lists of numbers (ranges, runs) kept on one line."""
-    text = json.dumps(content, indent=1, ensure_ascii=False)
+    text = json.dumps(content, indent=1, ensure_ascii=False, allow_nan=False)
     return re.sub(r"\[[^\[\]{}\"]*\]", lambda m: "[" + " ".join(m.group(0)[1:-1].split()) + "]", text) + "\n"
 
 
 def _normalised(content: dict) -> dict:
     """The content as it reads back from JSON (lists, not tuples), so it compares with a read one."""
-    return json.loads(json.dumps(content))
+    return json.loads(json.dumps(content, allow_nan=False))

@@ -15,7 +15,10 @@ with one line that names the file and the fix.
 from __future__ import annotations
 
 import os
+import pickle
+import pickletools
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +30,9 @@ from nbvtrain.models import MODELS, NBVNet, ScoreNet, build_model
 INFERENCE_KEYS = ("model", "epoch", "config", "state_dict")
 RESUME_KEYS = INFERENCE_KEYS + ("optimizer", "history")
 USE_FIT = "pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)"
+ZIP_MAGIC = b"PK\x03\x04"
+LEGACY_MAGIC = pickle.dumps(torch.serialization.MAGIC_NUMBER, protocol=2)
+"""How a checkpoint in torch's format before 1.6 (a sequence of pickles) starts."""
 
 
 class CheckpointError(ShardError):
@@ -63,15 +69,11 @@ def load_checkpoint(path: str | Path, fix: str = USE_FIT, keys: tuple[str, ...] 
     if not path.is_file():
         raise CheckpointError(f"{path}: no such checkpoint file; {fix}")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # a foreign file can fail in any way: each is "not a checkpoint"
-        unsafe = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(error))
-        if unsafe:
-            raise CheckpointError(f"{path}: refused: it holds a pickled Python object ({unsafe.group(1)}), not "
-                                  f"plain data, and loading it could run code; {fix}") from None
-        first = (str(error).strip().splitlines() or [""])[0][:80]
-        raise CheckpointError(f"{path}: not a readable checkpoint ({type(error).__name__}: {first}); "
-                              f"{fix}") from None
+        with warnings.catch_warnings():  # torch warns of a pickle protocol it was not written with: refused anyway
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # a foreign file can fail in any way: say what the file is
+        raise CheckpointError(f"{path}: {_refusal(path, error)}; {fix}") from None
     if not isinstance(state, dict):
         raise CheckpointError(f"{path}: not an nbvtrain checkpoint (it holds a {type(state).__name__}); {fix}")
     missing = [key for key in keys if key not in state]
@@ -85,6 +87,74 @@ def load_checkpoint(path: str | Path, fix: str = USE_FIT, keys: tuple[str, ...] 
     if wrong:
         raise CheckpointError(f"{path}: not an nbvtrain checkpoint (malformed {', '.join(wrong)}); {fix}")
     return state
+
+
+def _refusal(path: Path, error: Exception) -> str:
+    """Why ``torch.load(path, weights_only=True)`` failed, in whole words: the file holds a pickled
+    object, is no PyTorch checkpoint, or is a damaged one. Never torch's advice to load it unsafely."""
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(64)
+    except OSError as failure:
+        return f"cannot be read ({failure.strerror or type(failure).__name__})"
+    unsafe = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(error))
+    weights_only = "Weights only load failed" in str(error)
+    if head.startswith(ZIP_MAGIC):  # what torch.save writes
+        if unsafe or weights_only:
+            return _pickled_object(unsafe.group(1) if unsafe else None)
+        return "not a readable PyTorch checkpoint (a zip archive, damaged, cut short or not written by torch.save)"
+    if len(head) > 1 and head[0] == 0x80 and 2 <= head[1] <= 5:  # a pickle: plain, or torch's legacy format
+        if unsafe:
+            return _pickled_object(unsafe.group(1))
+        if head.startswith(LEGACY_MAGIC):
+            return "not a readable PyTorch checkpoint (one in torch's legacy format, damaged or cut short)"
+        name = _pickled_global(path)
+        if name:
+            return _pickled_object(None if name == "?" else name)
+        return "not a PyTorch checkpoint (a Python pickle, not written by torch.save)"
+    kind = "an empty file" if not head else "a text file" if _is_text(head) else "other bytes"
+    return f"not a PyTorch checkpoint ({kind})"
+
+
+def _pickled_object(name: str | None) -> str:
+    return (f"holds a pickled Python object ({f'{name}; ' if name else ''}not plain tensors); refused without "
+            "running it")
+
+
+def _pickled_global(path: Path) -> str | None:
+    """The first Python object (``module.name``) the pickles in ``path`` name, found by reading
+    their opcodes without unpickling anything; "?" for one whose name is not spelled out there,
+    None when they name none."""
+    object_opcodes = {"REDUCE", "BUILD", "OBJ", "NEWOBJ", "NEWOBJ_EX", "INST"}
+    with path.open("rb") as handle:
+        while handle.peek(1):  # one pickle after another, to the end of the file
+            strings: list[str] = []  # the strings pushed just before: a STACK_GLOBAL's module and name
+            try:
+                for opcode, argument, _ in pickletools.genops(handle):
+                    if opcode.name == "GLOBAL":
+                        return str(argument).replace(" ", ".")
+                    if opcode.name == "STACK_GLOBAL":
+                        return ".".join(strings[-2:]) if len(strings) >= 2 else "?"
+                    if opcode.name in object_opcodes:
+                        return "?"
+                    if isinstance(argument, str):
+                        strings.append(argument)
+                    elif opcode.name != "MEMOIZE":
+                        strings.clear()
+            except Exception:  # noqa: BLE001  (bytes that are no pickle: nothing named)
+                return None
+    return None
+
+
+def _is_text(head: bytes) -> bool:
+    """Whether the first bytes of a file read as UTF-8 text (a multi-byte letter may be cut at the end)."""
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError as error:
+        if error.start < len(head) - 3:
+            return False
+        text = head[:error.start].decode("utf-8")
+    return all(char.isprintable() or char in "\t\n\r\f" for char in text)
 
 
 def model_from(state: dict, path: Path, fix: str = USE_FIT) -> NBVNet | ScoreNet:

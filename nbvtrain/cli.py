@@ -18,9 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from nbvdata.commandline import (Integer, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
+                                  non_negative_int, positive_float, positive_int)
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
+from nbvdata.userarrays import NpyError, read_npy
 from nbvtrain import __version__
 from nbvtrain.sensordata import SensorDataError
 
@@ -63,7 +66,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
-    from nbvtrain.predict import GridError, Predictor, prediction_json
+    from nbvtrain.predict import GridError, Predictor, prediction_dict
 
     from nbvtrain.release import released_checkpoint
 
@@ -72,14 +75,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     taken = None
     if args.grid.suffix == ".npy":
         try:
-            grid = np.load(args.grid)
-        except (OSError, ValueError) as error:
-            raise ShardError(f"{args.grid}: not a readable .npy grid ({error})") from None
-        if not isinstance(grid, np.ndarray):
-            raise ShardError(f"{args.grid}: holds several arrays (.npz), not one grid: np.save one 32^3 grid")
-        if grid.size != 32 ** 3:
-            raise ShardError(f"{args.grid}: holds {plural(grid.size, 'value')}, a grid has 32^3 = 32768")
-        grid, source = grid.reshape(32, 32, 32), str(args.grid)
+            grid, source = read_npy(args.grid), str(args.grid)
+        except NpyError as error:
+            raise ShardError(str(error)) from None
     else:
         with Shard(args.grid) as shard:
             if not 0 <= args.index < len(shard):
@@ -93,10 +91,15 @@ def cmd_predict(args: argparse.Namespace) -> int:
     if args.scanned is not None:
         taken = _scanned(args.scanned, predictor)
     try:
-        (prediction,) = predictor.predict(grid, taken)
+        predictions = predictor.predict(grid, taken)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
-    print(prediction_json(prediction, predictor, source, taken))
+    if grid.ndim == 3:  # one grid: one answer
+        answer = prediction_dict(predictions[0], predictor, source, taken)
+    else:  # (B, 32, 32, 32): a list of B answers, in order
+        answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken)
+                  for index, prediction in enumerate(predictions)]
+    print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
 
 
@@ -132,7 +135,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"nbvtrain plan: note: the map's voxels ({result.octomap['resolution']:g} m) are not the grid's "
               f"({answer['grid']['voxel']:.4g} m, corner on a key boundary): each grid voxel took the map's leaf at "
               "its centre", file=sys.stderr)
-    text = json.dumps(answer, indent=2)
+    text = json.dumps(answer, indent=2, allow_nan=False)
     for path, write in ((args.out, lambda p: p.write_text(text + "\n")),
                         (args.save_grid, lambda p: np.save(p, result.grid)),
                         (args.png, lambda p: render_plan(result, p))):
@@ -181,12 +184,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if unknown or not names:
         raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}, or a policy "
                           "module:function")
-    if args.scans < 2:
-        raise ConfigError(f"--scans {args.scans}: must be >= 2 (the start scan and at least one planned one)")
-    if args.starts < 0:
-        raise ConfigError(f"--starts {args.starts}: must be >= 0 (0 = only the view in front)")
-    if args.workers < 0:
-        raise ConfigError(f"--workers {args.workers}: must be >= 0 (0 = one per core)")
     config = load_config(SimConfig, args.config, args.overrides)
     try:
         sources, failures = mesh_sources(args.meshes)
@@ -231,7 +228,7 @@ def cmd_release(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> Parser:
     from nbvtrain.models import MODELS
     from nbvtrain.release import TASKS, released_files
 
@@ -240,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     released = {task: Path(files[task]).stem if task in files else "none released" for task in TASKS}
 
     summary = " ".join(__doc__.split("\n\n")[0].replace("``", "").split())  # the first paragraph, whole
-    parser = argparse.ArgumentParser(prog="nbvtrain", description=summary)
+    parser = Parser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -254,24 +251,24 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
     fit.add_argument("--model", choices=list(MODELS), help="network (default nbvnet-4-5)")
-    fit.add_argument("--epochs", type=int, help="total epochs (default 600)")
-    fit.add_argument("--batch-size", type=int, help="samples per step (default 250)")
-    fit.add_argument("--lr", type=float, help="Adam learning rate (default 1e-4)")
+    fit.add_argument("--epochs", type=positive_int, help="total epochs (default 600)")
+    fit.add_argument("--batch-size", type=positive_int, help="samples per step (default 250)")
+    fit.add_argument("--lr", type=positive_float, help="Adam learning rate (default 1e-4)")
     fit.add_argument("--lr-schedule", choices=["constant", "cosine"], help="constant (paper, default) or cosine "
                      "decay to 0 over the epochs")
     fit.add_argument("--score-loss", choices=["listwise", "regression", "argmax"], help="score networks "
                      "(nbvscore-*): the loss over every candidate view's gain (default listwise)")
-    fit.add_argument("--dropout", type=float, help="dropout probability (default 0.5)")
+    fit.add_argument("--dropout", type=fraction, help="dropout probability (default 0.5)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")
     fit.add_argument("--split", choices=["random", "mesh"], help="random samples (paper) or whole meshes held out; "
                      "with a manifest, its split of that kind")
-    fit.add_argument("--val-fraction", type=float, help="share held out for validation (default 0.2)")
+    fit.add_argument("--val-fraction", type=fraction, help="share held out for validation (default 0.2)")
     fit.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
                      help="rotate grids and targets by random quarter turns about z")
-    fit.add_argument("--seed", type=int, help="seed of split, weights, batches, dropout (default 0)")
+    fit.add_argument("--seed", type=non_negative_int, help="seed of split, weights, batches, dropout (default 0)")
     fit.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default auto")
-    fit.add_argument("--threads", type=int, help="torch CPU threads (default: one per core)")
+    fit.add_argument("--threads", type=non_negative_int, help="torch CPU threads (default: one per core)")
     fit.add_argument("--mixed-scenes", action="store_true", default=None, help="train on shards made in different "
                      "scenes (other views, sensor, grid, ...; refused by default): the checkpoint records a mixed "
                      "scene")
@@ -282,15 +279,17 @@ def build_parser() -> argparse.ArgumentParser:
     fit.set_defaults(func=cmd_fit)
 
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
-    predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
-    predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
+    predict.add_argument("grid", type=Path, help="a .npy of one (32, 32, 32) grid or of (B, 32, 32, 32) grids "
+                         "(probabilities, 0.5 = unknown; B grids print a JSON list of B answers), or a shard")
+    predict.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
                          f"released score network, {released['scores']})")
     predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
                          "from the shard's run for a shard sample, none for a .npy grid)")
-    predict.add_argument("--k", type=float, default=1.0, help="scale of the position beyond the view sphere "
+    predict.add_argument("--k", type=positive_float, default=1.0, help="scale of the position beyond the view sphere "
                          "(paper: 2.5 for its 1 m robot scene)")
-    predict.add_argument("--radius", type=float, help="view sphere radius, metres (default: the training data's)")
+    predict.add_argument("--radius", type=positive_float, help="view sphere radius, metres (default: the training "
+                         "data's)")
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
 
@@ -306,14 +305,14 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--octomap", type=Path, help="an OctoMap in the world frame (.bt or .ot)")
     plan.add_argument("--center", required=True, help="the object's centre x,y,z, world frame, metres "
                       "(write --center=-1,2,3 when it starts with a minus)")
-    plan.add_argument("--size", type=float, help="the object's largest side, metres (default: the training scene's "
-                      "mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
+    plan.add_argument("--size", type=positive_float, help="the object's largest side, metres (default: the training "
+                      "scene's mesh.object_size, 0.136); the grid's cube and the view radius scale with it")
     plan.add_argument("--up", default="z", help="the world's vertical: x, y, z, -x, -y, -z or a vector a,b,c "
                       "(default z)")
     plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit: a candidate-score, regression or "
                       f"classification network (default: the released score network, {released['scores']})")
-    plan.add_argument("--max-range", type=float, help="with --scans: metres from the sensor beyond which a point "
-                      "marks nothing occupied and carves free space to that range (default sensor.far x k)")
+    plan.add_argument("--max-range", type=positive_float, help="with --scans: metres from the sensor beyond which a "
+                      "point marks nothing occupied and carves free space to that range (default sensor.far x k)")
     plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
                       "the default scene)")
     plan.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -329,11 +328,12 @@ def build_parser() -> argparse.ArgumentParser:
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     baselines.add_argument("--split", choices=["random", "mesh"], default="random", help="random samples (paper, "
                            "default) or whole meshes held out, as nbvtrain fit --split")
-    baselines.add_argument("--val-fraction", type=float, default=0.2, help="share held out for validation "
+    baselines.add_argument("--val-fraction", type=fraction, default=0.2, help="share held out for validation "
                            "(default 0.2)")
-    baselines.add_argument("--seed", type=int, default=0, help="seed of the split, as nbvtrain fit --seed (default 0)")
-    baselines.add_argument("--memory-limit-gb", type=float, default=8.0, help="grids in memory up to this size, "
-                           "else read from the shards as needed (default 8)")
+    baselines.add_argument("--seed", type=non_negative_int, default=0, help="seed of the split, as nbvtrain fit --seed "
+                           "(default 0)")
+    baselines.add_argument("--memory-limit-gb", type=non_negative_float, default=8.0, help="grids in memory up to this "
+                           "size, else read from the shards as needed (default 8)")
     baselines.add_argument("--mixed-scenes", action="store_true", help="score shards made in different scenes "
                            "together (refused by default, as by fit)")
     baselines.set_defaults(func=cmd_baselines)
@@ -353,16 +353,19 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
                           "-nostall; off = the paper's behaviour)")
-    evaluate.add_argument("--scans", type=int, default=10, help="scans per reconstruction, the start included (10)")
-    evaluate.add_argument("--starts", type=int, default=0, help="random start views per object besides the front one")
-    evaluate.add_argument("--seed", type=int, default=0, help="seed of start views, reference points, random planner")
+    evaluate.add_argument("--scans", type=Integer(2), default=10, help="scans per reconstruction, the start and at "
+                          "least one planned one (default 10)")
+    evaluate.add_argument("--starts", type=non_negative_int, default=0,
+                          help="random start views per object besides the front one")
+    evaluate.add_argument("--seed", type=non_negative_int, default=0,
+                          help="seed of start views, reference points, random planner")
     evaluate.add_argument("--out", type=Path, default=Path("runs/evaluate"), help="output folder (runs/evaluate)")
     evaluate.add_argument("--config", type=Path, help="YAML of simulation settings, as for nbvdata (default: the "
                           "default scene; configs/smoke.yaml is a small one for a quick try)")
     evaluate.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                           help="override one simulation setting, e.g. --set sensor.noise_std=0.001")
-    evaluate.add_argument("--workers", type=int, default=1, help="meshes evaluated at once, in processes of one "
-                          "thread each; the same outputs but timings (default 1; 0 = one per core)")
+    evaluate.add_argument("--workers", type=non_negative_int, default=1, help="meshes evaluated at once, in "
+                          "processes of one thread each; the same outputs but timings (default 1; 0 = one per core)")
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)
@@ -380,6 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@exit_quietly_when_stdout_closes
 def main(argv: list[str] | None = None) -> int:
     try:
         import torch  # noqa: F401  (nbvtrain's one optional dependency: nbvdata runs without it)

@@ -16,7 +16,7 @@ axis would show in yaw.
 from __future__ import annotations
 
 import functools
-import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from nbvdata.config import ConfigError
+from nbvdata.userarrays import GridError, check_grids
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
 from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions
@@ -62,12 +63,17 @@ class Predictor:
         self.view_units = state["view_units"].double().numpy() if self.model.task == "scores" else None
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)
+        if not (math.isfinite(self.k) and self.k > 0):
+            raise ConfigError(f"k {self.k}: must be a positive finite number (--k)")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            where = "--radius" if radius is not None else f"the view_radius of {path}: pass --radius"
+            raise ConfigError(f"view radius {self.radius}: must be a positive finite number of metres ({where})")
 
     def raw(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
         """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
         positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
         scanned views, default none). GridError (a ValueError) for a bad grid (``check_grids``)."""
-        grids = torch.from_numpy(check_grids(grids)).to(self.device).unsqueeze(1)
+        grids = torch.from_numpy(check_grids(grids, GRID_SIZE)).to(self.device).unsqueeze(1)
         with torch.inference_mode():
             if self.model.task != "scores":
                 return self.model.head(self._features(grids)).cpu().numpy().astype(np.float64)
@@ -107,34 +113,6 @@ class Predictor:
             pose = Pose.look_at(direction * self.radius * self.k)
             predictions.append(NBVPrediction(raw, direction, pose))
         return predictions
-
-
-class GridError(ValueError):
-    """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
-
-
-ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
-
-
-def check_grids(grids: np.ndarray) -> np.ndarray:
-    """(n, n, n) or (B, n, n, n) float probabilities in [0, 1], n = 32 -> (B, n, n, n) float32.
-
-    GridError for another shape, an integer or boolean dtype, NaN or values outside [0, 1]."""
-    array = np.asarray(grids)
-    shape = (GRID_SIZE,) * 3
-    if array.ndim not in (3, 4) or array.shape[-3:] != shape:
-        raise GridError(f"grid has shape {array.shape}, expected {shape} or (B, {', '.join(map(str, shape))})")
-    if array.dtype.kind != "f":
-        raise GridError(f"grid has dtype {array.dtype}, expected {ENCODING}")
-    if array.size:
-        nan = np.isnan(array)
-        if nan.any():
-            raise GridError(f"grid holds {int(nan.sum())} NaN values of {array.size}: expected {ENCODING}")
-        low, high = float(array.min()), float(array.max())
-        if low < 0 or high > 1:
-            raise GridError(f"grid holds values in [{low:g}, {high:g}], outside [0, 1]: expected {ENCODING}")
-    array = array.astype(np.float32, copy=False)
-    return array[None] if array.ndim == 3 else array
 
 
 def _fast_features(model: NBVNet | ScoreNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -179,14 +157,13 @@ def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: tor
     return grids.to_dense()
 
 
-def prediction_json(prediction: NBVPrediction, predictor: Predictor, source: str,
-                    taken: np.ndarray | None = None) -> str:
-    """The JSON ``nbvtrain predict`` prints; for a score network also the chosen candidate
-    ``view`` and the ``scanned`` views it was told of (``candidate_fields``)."""
+def prediction_dict(prediction: NBVPrediction, predictor: Predictor, source: str,
+                    taken: np.ndarray | None = None) -> dict:
+    """The answer ``nbvtrain predict`` prints as JSON for one grid; for a score network also the
+    chosen candidate ``view`` and the ``scanned`` views it was told of (``candidate_fields``)."""
     extra = candidate_fields(predictor.view_units, prediction.direction, taken)
-    return json.dumps({"source": source, "checkpoint": str(predictor.path), "model": predictor.name,
-                       "epoch": predictor.epoch, "radius": predictor.radius, "k": predictor.k, **extra,
-                       **prediction.to_dict()}, indent=2)
+    return {"source": source, "checkpoint": str(predictor.path), "model": predictor.name, "epoch": predictor.epoch,
+            "radius": predictor.radius, "k": predictor.k, **extra, **prediction.to_dict()}
 
 
 def candidate_fields(view_units: np.ndarray | None, direction: np.ndarray, taken: np.ndarray | None) -> dict:

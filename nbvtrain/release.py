@@ -115,7 +115,7 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> tuple[
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
         sections.append(_card_section(task, run, state, path))
-    (out / REFERENCE).write_text(json.dumps(answers, indent=1) + "\n")
+    (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
     card.write_text(_card(sections, answers, evaluations, torch.__version__,
                           packaged=out.resolve() == released_folder().resolve()))
@@ -190,7 +190,8 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
     lines += sections
     lines += ["## Reference answers", "",
               "For `nbvtrain.release.reference_grid()` with nothing scanned (tests/test_release.py checks that the "
-              "installed package reproduces them):", "", "```json", json.dumps(answers, indent=1), "```", ""]
+              "installed package reproduces them):", "", "```json", json.dumps(answers, indent=1, allow_nan=False),
+              "```", ""]
     for evaluation in evaluations:
         summary = (evaluation / "summary.md").read_text()
         lines += [f"## Evaluation: {summary.splitlines()[0].lstrip('# ')} (`{evaluation.name}`)", "",

@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from nbvdata.text import plural
+from nbvdata.userarrays import NpyError, read_npy
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".npy")
 OCTOMAP_SUFFIXES = (".bt", ".ot")
@@ -124,13 +125,11 @@ def read_cloud(path: str | Path) -> np.ndarray:
 
 def _read_npy(path: Path) -> np.ndarray:
     try:
-        array = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as error:
-        raise SensorDataError(f"{path}: not a readable .npy array ({_first_line(error)}): np.save an (N, 3) "
-                              "float array") from None
-    if not isinstance(array, np.ndarray) or array.dtype.kind not in "fiu":
-        kind = "several arrays (.npz)" if not isinstance(array, np.ndarray) else f"dtype {array.dtype}"
-        raise SensorDataError(f"{path}: holds {kind}: np.save one (N, 3) float array")
+        array = read_npy(path)
+    except NpyError as error:
+        raise SensorDataError(f"{error} (one (N, 3) float array)") from None
+    if array.dtype.kind not in "fiu":
+        raise SensorDataError(f"{path}: holds dtype {array.dtype}: np.save one (N, 3) float array")
     return array.astype(np.float64)
 
 

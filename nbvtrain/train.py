@@ -169,7 +169,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             "shards": [str(Path(p).resolve()) for p in data.paths], "samples": len(data),
             "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
             **({} if published is None else {"manifest": published.identity}),
-            "val_indices": val_idx.tolist()}, indent=1))
+            "val_indices": val_idx.tolist()}, indent=1, allow_nan=False))
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
             f"{plural(len(data.paths), 'shard')}")

@@ -21,14 +21,68 @@ def test_demo_writes_a_png(tmp_path, capsys, monkeypatch):
     assert drawn["labels"] == ("last scan", "earlier scans")  # the legend: red is not an NBV here
 
 
-def test_show_renders_a_saved_grid(tmp_path):
+def _grid(seed: int = 0) -> np.ndarray:
     grid = np.full(32 ** 3, 0.5, dtype=np.float32)
     grid[:1000] = 0.4
-    grid[16000:16100] = 0.7
-    np.save(tmp_path / "g.npy", grid)
+    grid[16000 + 100 * seed:16100 + 100 * seed] = 0.7
+    return grid.reshape(32, 32, 32)
+
+
+def test_show_renders_a_saved_grid(tmp_path, monkeypatch):
+    import nbvdata.render
+
+    drawn = []
+    render_state = nbvdata.render.render_state
+    monkeypatch.setattr(nbvdata.render, "render_state", lambda grid, *a, **k: drawn.append(grid) or
+                        render_state(grid, *a, **k))
+    np.save(tmp_path / "g.npy", _grid())
     out = tmp_path / "g.png"
     assert main(["show", str(tmp_path / "g.npy"), "--highlight", "3", "--out", str(out)]) == 0
     assert out.stat().st_size > 1000
+    np.save(tmp_path / "batch.npy", np.stack([_grid(0), _grid(1), _grid(2)]).astype(np.float64))  # (B, 32, 32, 32)
+    assert main(["show", str(tmp_path / "batch.npy"), "--index", "2", "--out", str(out)]) == 0
+    assert np.array_equal(drawn[0], _grid()) and np.array_equal(drawn[1], _grid(2)) and drawn[1].dtype == np.float32
+
+
+SHOW_BAD_GRIDS = {
+    "NaN": (np.where(np.arange(32 ** 3) == 5, np.nan, 0.5).reshape(32, 32, 32), "grid holds 1 NaN values of 32768"),
+    "integers": (np.ones((32, 32, 32), dtype=np.int64), "grid has dtype int64, expected float occupancy probabilities"),
+    "out of range": (np.full((32, 32, 32), 7.0), "grid holds values in [7, 7], outside [0, 1]"),
+    "(64, 32, 16)": (np.full((64, 32, 16), 0.5),
+                     "grid has shape (64, 32, 16), expected (32, 32, 32) or (B, 32, 32, 32)"),
+    "flat": (np.full(32 ** 3, 0.5), "grid has shape (32768,), expected (32, 32, 32)"),
+    "16^3": (np.full((16, 16, 16), 0.5), "grid has shape (16, 16, 16), expected (32, 32, 32)"),
+}
+
+
+@pytest.mark.parametrize("case", SHOW_BAD_GRIDS)
+def test_show_refuses_what_predict_refuses(case, tmp_path, capsys):
+    grid, message = SHOW_BAD_GRIDS[case]
+    np.save(tmp_path / "g.npy", grid)
+    assert main(["show", str(tmp_path / "g.npy"), "--out", str(tmp_path / "g.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"nbvdata show: error: {tmp_path / 'g.npy'}: {message}"), err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "g.png").exists()
+
+
+def test_show_checks_grids_with_predicts_own_function():
+    """One check for both commands: nbvtrain's API uses nbvdata's check_grids (nbvdata imports no nbvtrain)."""
+    import nbvdata.userarrays
+    import nbvtrain.predict
+
+    assert nbvtrain.predict.check_grids is nbvdata.userarrays.check_grids
+    assert nbvtrain.predict.GridError is nbvdata.userarrays.GridError
+
+
+def test_show_names_a_file_that_is_no_plain_array(tmp_path, capsys):
+    (tmp_path / "g.npy").write_text("0.5 0.5\n")
+    assert main(["show", str(tmp_path / "g.npy"), "--out", str(tmp_path / "g.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"nbvdata show: error: {tmp_path / 'g.npy'}: not a numpy array file (.npy): write it with np.save"
+    np.save(tmp_path / "b.npy", np.stack([_grid(), _grid()]))
+    assert main(["show", str(tmp_path / "b.npy"), "--index", "2", "--out", str(tmp_path / "g.png")]) == 2
+    assert capsys.readouterr().err.strip() == (f"nbvdata show: error: --index 2: {tmp_path / 'b.npy'} holds 2 grids "
+                                               "(0..1)")
 
 
 def _legend_of_show(argv, monkeypatch) -> list[str]:

@@ -156,10 +156,12 @@ def test_planners_without_checkpoints_are_skipped_and_errors_exit_2(meshes, chec
         (["--planners", "classification"], "no planner left to run"),
         (["--planners", "classification", "--class-checkpoint", str(checkpoints["nbvnet-3-3"])],
          "a regression network (nbvnet-3-3); pass it with --checkpoint"),
-        (["--scans", "1"], "--scans 1: must be >= 2"),
     ]:
         assert main(["evaluate", "--meshes", str(meshes), "--config", str(SMOKE), "--out", str(out), *argv]) == 2
         assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:  # refused by the option's type, before anything runs
+        main(["evaluate", "--meshes", str(meshes), "--out", str(out), "--scans", "1"])
+    assert done.value.code == 2 and "argument --scans: must be a whole number >= 2, not '1'" in capsys.readouterr().err
 
 
 def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys):

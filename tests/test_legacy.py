@@ -214,8 +214,9 @@ def test_bad_inputs_give_one_line_errors_and_exit_2(tmp_path, rng, capsys, case,
 
 @pytest.mark.parametrize("flag", ["--rows-per-shard", "--limit"])
 def test_bad_counts_are_usage_errors(tmp_path, capsys, flag):
-    assert main(["import-legacy", "--volumes", "v.zip", "--poses", "p.zip", "--out", str(tmp_path), flag, "0"]) == 2
-    assert f"{flag} 0: must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:
+        main(["import-legacy", "--volumes", "v.zip", "--poses", "p.zip", "--out", str(tmp_path), flag, "0"])
+    assert done.value.code == 2 and f"argument {flag}: must be a whole number >= 1, not '0'" in capsys.readouterr().err
 
 
 @pytest.fixture

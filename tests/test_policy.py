@@ -171,7 +171,7 @@ def test_a_bad_checkpoint_is_one_line_and_exit_2(tmp_path, capsys):
     junk.write_bytes(b"not a checkpoint")
     assert main(["generate", "--out", str(tmp_path / "out"), "--config", str(SMOKE), "--policy", str(junk)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "junk.pt: not a readable checkpoint" in err and len(err.splitlines()) == 1, err
+    assert "junk.pt: not a PyTorch checkpoint (a text file)" in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "out").exists()  # refused before anything was written
 
 

@@ -5,6 +5,7 @@ a one-line error, and inference builds no deprecated torch.jit modules."""
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,11 +14,12 @@ import torch
 import trimesh
 import yaml
 
-from nbvdata.config import to_yaml
+from nbvdata.config import SimConfig, to_yaml
+from nbvdata.views import view_sphere
 from nbvtrain.checkpoint import CheckpointError, load_checkpoint
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.models import build_model
+from nbvtrain.models import MODELS, build_model
 from nbvtrain.predict import GridError, Predictor
 from nbvtrain.train import _save
 
@@ -26,8 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _checkpoint(path: Path, model: str = "nbvnet-3-3", history: list | None = None) -> Path:
     torch.manual_seed(0)
-    net = build_model(model)
-    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4)
+    units = view_sphere(SimConfig().views).unit_positions if MODELS[model].task == "scores" else None
+    net = build_model(model, views=units)
+    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4, None, units)
     return path
 
 
@@ -65,7 +68,8 @@ def test_a_pickled_object_is_refused_and_its_code_never_runs(tmp_path, capsys):
     evil = tmp_path / "evil.pt"
     torch.save(state | {"history": [WritesAFile(marker)]}, evil)
     np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
-    with pytest.raises(CheckpointError, match=r"evil\.pt: refused: it holds a pickled Python object \(io\.open\)"):
+    with pytest.raises(CheckpointError, match=r"evil\.pt: holds a pickled Python object \(io\.open; not plain "
+                       r"tensors\); refused without running it; pass a checkpoint"):
         Predictor(evil)
     assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(evil)]) == 2
     _one_line_error(capsys, str(evil), "refused", "nbvtrain fit")
@@ -177,10 +181,9 @@ def test_grids_outside_the_authors_encoding_are_refused(case, tmp_path, capsys):
     predictor = Predictor(_checkpoint(tmp_path / "best.pt"))
     with pytest.raises(GridError, match=message):  # a ValueError
         predictor.predict(grid)
-    if grid.ndim == 3:  # (the command line takes a flat row of 32^3 values too, as the authors store them)
-        np.save(tmp_path / "grid.npy", grid)
-        assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(tmp_path / "best.pt")]) == 2
-        _one_line_error(capsys, f"nbvtrain predict: error: {tmp_path / 'grid.npy'}: ")
+    np.save(tmp_path / "grid.npy", grid)  # the command line refuses what the API refuses, in one line
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(tmp_path / "best.pt")]) == 2
+    _one_line_error(capsys, f"nbvtrain predict: error: {tmp_path / 'grid.npy'}: ")
     assert isinstance(GridError("x"), ValueError)
 
 
@@ -207,3 +210,216 @@ def test_predict_builds_no_torch_jit_and_warns_nothing(tmp_path):
     with torch.inference_mode():
         grids = torch.from_numpy(grid)[None, None]
         torch.testing.assert_close(predictor._features(grids), predictor.model.features(grids), atol=1e-6, rtol=0)
+
+
+# ---- the command line takes what the Python API takes -------------------------------------------------------
+
+
+def _strict_json(text: str):
+    """json.loads that refuses NaN and Infinity, which are not JSON."""
+    import json
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.mark.parametrize("shape", [(64, 32, 16), (32, 1024), (32 ** 3,), (8, 64, 64), (2, 32, 32, 32, 1)])
+def test_predict_refuses_what_the_api_refuses_whatever_the_number_of_values(shape, tmp_path, capsys):
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    grid = np.full(shape, 0.5, dtype=np.float32)
+    with pytest.raises(GridError, match=r"expected \(32, 32, 32\) or \(B, 32, 32, 32\)"):
+        Predictor(checkpoint).predict(grid)
+    np.save(tmp_path / "grid.npy", grid)
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(checkpoint)]) == 2
+    _one_line_error(capsys, f"nbvtrain predict: error: {tmp_path / 'grid.npy'}: grid has shape {shape}, expected "
+                    "(32, 32, 32) or (B, 32, 32, 32)")
+
+
+@pytest.mark.parametrize("model", ["nbvnet-3-3", "nbvscore-3"])
+def test_predict_answers_a_batch_of_grids_with_a_list(model, tmp_path, capsys):
+    """(B, 32, 32, 32) -> a JSON list of B answers, each the answer for that grid alone."""
+    checkpoint = _checkpoint(tmp_path / "best.pt", model)
+    rng = np.random.default_rng(0)
+    grids = rng.choice(np.array([0.2, 0.5, 0.9], dtype=np.float32), size=(3, 32, 32, 32))
+    np.save(tmp_path / "grids.npy", grids)
+    assert main(["predict", str(tmp_path / "grids.npy"), "--checkpoint", str(checkpoint)]) == 0
+    answers = _strict_json(capsys.readouterr().out)
+    assert isinstance(answers, list) and len(answers) == 3
+    predictor = Predictor(checkpoint)
+    batch = predictor.predict(grids)  # the API's answers for the batch, exactly
+    for index, answer in enumerate(answers):
+        assert answer["source"] == f"{tmp_path / 'grids.npy'}[{index}]"
+        assert answer["network_output"] == batch[index].raw.tolist() and answer["position"] == batch[index].to_dict()[
+            "position"]
+        np.save(tmp_path / "one.npy", grids[index])
+        assert main(["predict", str(tmp_path / "one.npy"), "--checkpoint", str(checkpoint)]) == 0
+        alone = _strict_json(capsys.readouterr().out)
+        assert isinstance(alone, dict) and alone["source"] == str(tmp_path / "one.npy")  # one grid: one answer
+        assert alone.keys() == answer.keys() and alone.get("view") == answer.get("view")
+        for key in ("position", "direction", "network_output", "yaw", "pitch", "roll"):  # batched float32 sums
+            assert answer[key] == pytest.approx(alone[key], rel=1e-5, abs=1e-6), key
+    if model == "nbvscore-3":  # --scanned holds for every grid of the batch
+        assert main(["predict", str(tmp_path / "grids.npy"), "--checkpoint", str(checkpoint), "--scanned", "1,2"]) == 0
+        assert [a["scanned"] for a in _strict_json(capsys.readouterr().out)] == [[1, 2]] * 3
+
+
+@pytest.mark.parametrize("option, value", [("--k", "0"), ("--k", "-2.5"), ("--k", "nan"), ("--k", "inf"),
+                                           ("--radius", "0"), ("--radius", "-0.4"), ("--radius", "nan"),
+                                           ("--radius", "abc")])
+def test_k_and_radius_are_positive_finite_numbers(option, value, tmp_path, capsys):
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    with pytest.raises(SystemExit) as done:
+        main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(checkpoint), f"{option}={value}"])
+    assert done.value.code == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert captured.out == "" and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith(f"nbvtrain predict: error: argument {option}: ") and "positive" in err, err
+
+
+def test_the_python_api_refuses_a_scale_that_is_no_length(tmp_path):
+    from nbvdata.config import ConfigError
+
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    for k, radius in ((float("nan"), None), (0.0, None), (1.0, -0.4), (1.0, float("inf"))):
+        with pytest.raises(ConfigError, match="must be a positive finite number"):
+            Predictor(checkpoint, k=k, radius=radius)
+    state = torch.load(checkpoint, weights_only=True)  # a checkpoint's own view radius is checked too
+    torch.save(state | {"view_radius": float("nan")}, tmp_path / "nan.pt")
+    with pytest.raises(ConfigError, match="view radius nan"):
+        Predictor(tmp_path / "nan.pt")
+
+
+def test_the_printed_json_is_standard(tmp_path, capsys):
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    np.save(tmp_path / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(checkpoint), "--k", "2.5"]) == 0
+    answer = _strict_json(capsys.readouterr().out)
+    assert answer["k"] == 2.5 and np.linalg.norm(answer["position"]) == pytest.approx(2.5 * 0.4)
+
+
+def test_every_json_the_package_writes_refuses_nan():
+    """json.dumps(..., allow_nan=False) wherever the package prints or writes JSON."""
+    import ast
+
+    calls = 0
+    for path in sorted((ROOT / "nbvdata").glob("*.py")) + sorted((ROOT / "nbvtrain").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in ("dump", "dumps") and isinstance(node.func.value, ast.Name)
+                    and node.func.value.id == "json"):
+                calls += 1
+                strict = [k for k in node.keywords if k.arg == "allow_nan" and isinstance(k.value, ast.Constant)
+                          and k.value.value is False]
+                assert strict, f"{path.name}:{node.lineno}: json.{node.func.attr} without allow_nan=False"
+    assert calls >= 8  # the walk found the package's JSON
+
+
+# ---- checkpoint refusals say what the file is ----------------------------------------------------------------
+
+
+def test_a_text_file_is_not_a_pytorch_checkpoint(tmp_path, capsys):
+    """'j' is a pickle opcode: torch once read 'just ...' as a memo key (KeyError: 544502645)."""
+    path = tmp_path / "notes.pt"
+    path.write_text("just a note about the run\n")
+    with pytest.raises(CheckpointError) as refused:
+        load_checkpoint(path)
+    assert str(refused.value) == (f"{path}: not a PyTorch checkpoint (a text file); pass a checkpoint written by "
+                                  "nbvtrain fit (runs/NAME/best.pt)")
+
+
+@pytest.mark.parametrize("protocol", [2, 4, 5])
+def test_a_pickle_holding_an_object_is_refused_in_a_whole_sentence(protocol, tmp_path, capsys):
+    import pickle
+
+    marker = tmp_path / "ran"
+    path = tmp_path / "evil.pt"
+    with path.open("wb") as handle:
+        pickle.dump({"model": "nbvnet-3-3", "history": [WritesAFile(marker)]}, handle, protocol=protocol)
+    with pytest.raises(CheckpointError) as refused, warnings.catch_warnings(record=True) as warned:
+        warnings.simplefilter("always")
+        load_checkpoint(path)
+    assert not warned, [str(w.message) for w in warned]  # the one line is all the command prints
+    assert str(refused.value) == (f"{path}: holds a pickled Python object (io.open; not plain tensors); refused "
+                                  "without running it; pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+    assert not marker.exists()
+
+
+def test_a_pickle_of_plain_data_is_not_a_pytorch_checkpoint(tmp_path):
+    import pickle
+
+    path = tmp_path / "plain.pt"
+    path.write_bytes(pickle.dumps({"model": "nbvnet-3-3", "epoch": 3}))
+    with pytest.raises(CheckpointError, match=r"plain\.pt: not a PyTorch checkpoint \(a Python pickle, not written "
+                       r"by torch\.save\)"):
+        load_checkpoint(path)
+
+
+@pytest.mark.parametrize("kind", JUNK + ["cut short"])
+def test_no_refusal_suggests_loading_unsafely_or_stops_mid_word(kind, tmp_path):
+    path = tmp_path / "junk.pt"
+    if kind == "cut short":
+        whole = _checkpoint(tmp_path / "whole.pt").read_bytes()
+        path.write_bytes(whole[: len(whole) // 2])
+    else:
+        _junk(kind, path)
+    with pytest.raises(CheckpointError) as refused:
+        Predictor(path)
+    message = str(refused.value)
+    assert "weights_only" not in message and "allow" not in message and "Weights only load failed" not in message
+    assert message.endswith("; pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+    assert message.count("(") == message.count(")"), message  # nothing cut off inside a bracket
+
+
+# ---- .npy files that are not plain arrays ---------------------------------------------------------------------
+
+
+class Marks:
+    """An object whose unpickling would create ``marker``."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return open, (str(self.marker), "w")
+
+
+def _npy(kind: str, path: Path) -> Path:
+    if kind == "text":
+        path.write_text("0.5 0.5 0.5\n")
+    elif kind == "a pickle":
+        import pickle
+
+        path.write_bytes(pickle.dumps(np.full((32, 32, 32), 0.5)))
+    elif kind == "an object array":
+        array = np.empty(2, dtype=object)
+        array[:] = [Marks(path.with_name("ran")), 1]
+        np.save(path, array, allow_pickle=True)
+    elif kind == "an npz":
+        with path.open("wb") as handle:
+            np.savez(handle, a=np.zeros(3), b=np.ones(3))
+    elif kind == "cut short":
+        np.save(path, np.full((32, 32, 32), 0.5, dtype=np.float32))
+        path.write_bytes(path.read_bytes()[:5000])
+    elif kind == "empty":
+        path.write_bytes(b"")
+    return path
+
+
+NPY_JUNK = {"text": "not a numpy array file (.npy)", "a pickle": "not a numpy array file (.npy)",
+            "an object array": "holds Python objects (a pickled object array); refused without unpickling it",
+            "an npz": "holds several arrays (an .npz archive)", "cut short": "a .npy file, damaged or cut short",
+            "empty": "not a numpy array file (.npy)"}
+
+
+@pytest.mark.parametrize("kind", NPY_JUNK)
+def test_predict_names_a_file_that_is_no_plain_array_and_never_unpickles_it(kind, tmp_path, capsys):
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    path = _npy(kind, tmp_path / "grid.npy")
+    assert main(["predict", str(path), "--checkpoint", str(checkpoint)]) == 2
+    err = _one_line_error(capsys, f"nbvtrain predict: error: {path}: {NPY_JUNK[kind]}")
+    assert "allow_pickle" not in err and "pickle=" not in err
+    assert not (tmp_path / "ran").exists()

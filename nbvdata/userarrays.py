@@ -1,0 +1,70 @@
+"""Arrays users hand in: ``.npy`` files read without unpickling anything, and occupancy grids
+checked against the authors' encoding. ``nbvdata show``, ``nbvtrain predict`` (and its Python
+API, ``nbvtrain.predict.Predictor``) and ``nbvtrain plan``'s clouds all read through here."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+NPY_MAGIC = b"\x93NUMPY"
+ZIP_MAGIC = b"PK\x03\x04"
+ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
+
+
+class NpyError(ValueError):
+    """A file that is not one plain numpy array; the message names the file and the fix."""
+
+
+class GridError(ValueError):
+    """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
+
+
+def read_npy(path: Path) -> np.ndarray:
+    """The array in the ``.npy`` file at ``path``. NpyError when the file is missing, is no
+    ``.npy`` file (text, an ``.npz`` archive, a pickle), is damaged, or holds Python objects:
+    those are refused, never unpickled (``allow_pickle=False``)."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len(NPY_MAGIC))
+    except FileNotFoundError:
+        raise NpyError(f"{path}: no such file: check the path") from None
+    except OSError as error:
+        raise NpyError(f"{path}: cannot be read ({error.strerror or type(error).__name__})") from None
+    if head.startswith(ZIP_MAGIC):
+        raise NpyError(f"{path}: holds several arrays (an .npz archive), not one: np.save one array")
+    if head != NPY_MAGIC:
+        raise NpyError(f"{path}: not a numpy array file (.npy): write it with np.save")
+    try:
+        return np.load(path, allow_pickle=False)
+    except ValueError as error:
+        if "allow_pickle" in str(error):  # numpy's advice to unpickle it: never given on
+            raise NpyError(f"{path}: holds Python objects (a pickled object array); refused without unpickling "
+                           "it: np.save an array of numbers") from None
+        reason = str(error)
+    except (OSError, EOFError) as error:
+        reason = str(error) or type(error).__name__
+    detail = f" ({reason.strip().splitlines()[0]})" if reason.strip() else ""
+    raise NpyError(f"{path}: a .npy file, damaged or cut short{detail}: write it again with np.save")
+
+
+def check_grids(grids: np.ndarray, size: int = 32) -> np.ndarray:
+    """(n, n, n) or (B, n, n, n) float probabilities in [0, 1], n = ``size`` -> (B, n, n, n) float32.
+
+    GridError for another shape, an integer or boolean dtype, NaN or values outside [0, 1]."""
+    array = np.asarray(grids)
+    shape = (size,) * 3
+    if array.ndim not in (3, 4) or array.shape[-3:] != shape:
+        raise GridError(f"grid has shape {array.shape}, expected {shape} or (B, {', '.join(map(str, shape))})")
+    if array.dtype.kind != "f":
+        raise GridError(f"grid has dtype {array.dtype}, expected {ENCODING}")
+    if array.size:
+        nan = np.isnan(array)
+        if nan.any():
+            raise GridError(f"grid holds {int(nan.sum())} NaN values of {array.size}: expected {ENCODING}")
+        low, high = float(array.min()), float(array.max())
+        if low < 0 or high > 1:
+            raise GridError(f"grid holds values in [{low:g}, {high:g}], outside [0, 1]: expected {ENCODING}")
+    array = array.astype(np.float32, copy=False)
+    return array[None] if array.ndim == 3 else array
