@@ -15,7 +15,9 @@ ranking and weigh 0):
 - ``argmax``: cross-entropy with the label alone (a 500-class classifier; the ablation's control
   for what the full vectors add).
 
-The choice of a score network is the unscanned view with the highest score (``pick``).
+The choice of a score network is the unscanned view with the highest score (``pick``). Scores
+of several sources (the networks of an ensemble, information gain) are combined after
+``standardise``, which puts each on the same scale over the views that can be chosen.
 """
 
 from __future__ import annotations
@@ -81,3 +83,15 @@ def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
         directions = positions / np.where(norms > 0, norms, 1.0)
         taken[np.argmax(directions @ np.asarray(view_units, dtype=np.float64).T, axis=1)] = True
     return taken
+
+
+def standardise(scores: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(V,) scores as z-scores over the ``free`` (V,) bool views (those that can be chosen; all
+    views when none is free): minus their mean, over their standard deviation (kept unscaled
+    when that is 0). An increasing affine map, so the order of the views - and ``pick`` - stays;
+    invariant to any positive scale and shift of ``scores``."""
+    scores = np.asarray(scores, dtype=np.float64)
+    free = np.asarray(free, dtype=bool)
+    chosen = scores[free] if free.any() else scores
+    spread = chosen.std()
+    return (scores - chosen.mean()) / (spread if spread > 0 else 1.0)
