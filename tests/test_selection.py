@@ -150,3 +150,36 @@ def test_the_released_versions_val_part_is_found_in_the_shared_meshes():
     folders = {mesh.path.parent.name for mesh in found}
     assert len(found) == 110 and folders == {"train", "pybullet_random_urdfs"}
     assert sum(mesh.path.parent.name == "pybullet_random_urdfs" for mesh in found) == 85
+
+
+def _evaluation(folder: Path, finals: dict[str, float], checkpoint: str) -> Path:
+    """A fake evaluate folder: one start per mesh, 2 scans, the given final coverage per mesh."""
+    folder.mkdir(parents=True)
+    lines = ["mesh,planner,start,start_view,scan,coverage,observable_coverage,seconds,x,y,z,overlap,valid_views"]
+    for mesh, final in finals.items():
+        lines += [f"{mesh},scores,0,0,1,0.1,0.1,0,0,0,0,,", f"{mesh},scores,0,0,2,{final},{final},0.002,0,0,0,0.5,3"]
+    (folder / "coverage.csv").write_text("\n".join(lines) + "\n")
+    settings = {"evaluate": {"meshes": None, "manifest": {"name": "v", "version": "1.0.0", "part": "val"},
+                             "checkpoints": {"scores": checkpoint}}}
+    (folder / "config.yaml").write_text(yaml.safe_dump(settings))
+    return folder
+
+
+def test_the_selection_table_ranks_by_the_shared_meshes_and_says_when_a_run_stopped_improving(tmp_path):
+    """benchmarks/selection_table.py, which the recipe's convergence rule and choices read."""
+    import subprocess
+    import sys
+
+    script = ROOT / "benchmarks" / "selection_table.py"
+    shared = {2: 0.80, 4: 0.90, 6: 0.85, 8: 0.88}  # epoch -> shared-mesh coverage; procedural falls as shared rises
+    folders = [_evaluation(tmp_path / f"net-e{epoch:03d}", {"cup": value, "random_007": 1.5 - value},
+                           f"epoch-{epoch}.pt") for epoch, value in shared.items()]
+
+    def run(*args):
+        return subprocess.run([sys.executable, str(script), *args, *map(str, folders)], capture_output=True, text=True)
+
+    assert run("--top", "2").stdout.strip() == "epoch-4.pt,epoch-8.pt"
+    assert run("--top", "1", "--by", "procedural").stdout.strip() == "epoch-2.pt"
+    assert run("--stopped", "2").returncode == 0 and run("--stopped", "3").returncode == 1
+    table = run().stdout
+    assert "| net-e004 | scores **best** | v 1.0.0 val | 2 | 2 | 75.0 | 90.0 | 60.0 | 2.0 | epoch-4.pt |" in table
