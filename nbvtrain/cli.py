@@ -219,9 +219,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers)
     report.failures = failures + report.failures
     learned = {p.name: p.checkpoints for p in planners if hasattr(p, "checkpoints")}
+    recorded = {name: files[0] if len(files) == 1 else files for name, files in learned.items()}  # or an ensemble
     settings = settings_dict(config, meshes=args.meshes, **selection, planners=[p.name for p in planners],
-                             scans=args.scans, starts=args.starts, seed=args.seed,
-                             checkpoints={name: paths[0] if len(paths) == 1 else paths for name, paths in learned.items()},
+                             scans=args.scans, starts=args.starts, seed=args.seed, checkpoints=recorded,
                              no_stall=args.no_stall, tta=args.tta,
                              **({"hybrid_weights": weights, "hybrid_stride": args.hybrid_stride}
                                 if "hybrid" in names else {}))

@@ -404,7 +404,8 @@ def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) 
     ManifestError naming a missing or changed one), and what config.yaml records of the choice:
     {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
     published = load_manifest(manifest)
-    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in find_part_meshes(published, part, mesh_root)]
+    meshes = find_part_meshes(published, part, mesh_root)
+    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
     record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
     return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 

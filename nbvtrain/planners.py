@@ -10,14 +10,6 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   ensemble: the mean of their scores, each standardised over the unscanned views
   (``nbvtrain.scores.standardise``), so every network has one vote whatever the scale of its
   scores (their losses fix them only up to a shift, and their sharpness grows with training).
-- ``hybrid``: the score network's standardised scores plus ``weight`` times the standardised
-  information gain of every unscanned candidate view (0 for a view that fails the overlap
-  estimate or adds nothing, as the networks' targets give a view that breaks the overlap rule;
-  see ``infogain``),
-  from an image ``stride`` times coarser than the sensor's (the same field of view): weight 0 is
-  the network's choice, a large weight information gain's among the valid views.
-- ``tta`` (``nbvtrain evaluate --tta``): a learned planner averages its network's answers over
-  the four quarter turns about z where that is exact (``nbvtrain.predict.Predictor``).
 - ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
   candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
 - ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
@@ -36,6 +28,13 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   view passes, the most informative view is taken (as the oracle does).
 - ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
 - ``random``: a seeded uniformly random candidate view.
+- ``hybrid``: the score network's standardised scores plus ``weight`` times the standardised
+  information gain of every unscanned candidate view (``HybridPlanner``; 0 for a view that fails
+  the overlap estimate or adds nothing, as the networks' targets give a view that breaks the
+  overlap rule), from an image ``stride`` times coarser than the sensor's (the same field of
+  view): weight 0 is the network's choice, a large weight information gain's among the valid views.
+- ``tta`` (``nbvtrain evaluate --tta``): a learned planner averages its network's answers over
+  the four quarter turns about z where that is exact (``nbvtrain.predict.Predictor``).
 """
 
 from __future__ import annotations
@@ -111,8 +110,9 @@ class LearnedPlanner(Planner):
             predictor = Predictor(path, radius=radius, tta=tta)
             task = predictor.model.task
             if task != expect:
-                flag = {"classification": "--class-checkpoint", "scores": "--score-checkpoint"}.get(task, "--checkpoint")
-                raise ConfigError(f"{path}: a {task} network ({predictor.name}); pass it with {flag}")
+                flags = {"classification": "--class-checkpoint", "scores": "--score-checkpoint"}
+                raise ConfigError(f"{path}: a {task} network ({predictor.name}); pass it with "
+                                  f"{flags.get(task, '--checkpoint')}")
             if config is not None:
                 check_scene(predictor.scene, config, path)
             if views is None and (task == "scores" or no_stall):
@@ -386,7 +386,8 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                     skipped.append(f"{name}: skipped, {reason}")
                     continue
             if name == "hybrid":
-                planners += [HybridPlanner(path, config, views, weight, tta, hybrid_stride) for weight in hybrid_weights]
+                planners += [HybridPlanner(path, config, views, weight, tta, hybrid_stride)
+                             for weight in hybrid_weights]
             else:
                 planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config, tta))
         elif name == "infogain":

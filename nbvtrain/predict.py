@@ -68,8 +68,8 @@ class Predictor:
         if tta and (self.model.task == "classification" or (self.model.task == "scores" and not self.model.turns)):
             outputs = ("its 14 class views" if self.model.task == "classification" else
                        "its candidate views, which are outputs (nbvscore-3 takes them as inputs),")
-            raise ConfigError(f"{path}: quarter-turn averaging (--tta) is not exact for {state['model']}: quarter turns "
-                              f"do not map {outputs} onto each other; drop --tta for it")
+            raise ConfigError(f"{path}: quarter-turn averaging (--tta) is not exact for {state['model']}: quarter "
+                              f"turns do not map {outputs} onto each other; drop --tta for it")
         self.tta = bool(tta)
         try:
             self.device = torch.device(device)

@@ -89,7 +89,7 @@ def standardise(scores: np.ndarray, free: np.ndarray) -> np.ndarray:
     """(V,) scores as z-scores over the ``free`` (V,) bool views (those that can be chosen; all
     views when none is free): minus their mean, over their standard deviation (kept unscaled
     when that is 0). An increasing affine map, so the order of the views - and ``pick`` - stays;
-    invariant to any positive scale and shift of ``scores``."""
+    invariant (up to rounding) to any positive scale and shift of ``scores``."""
     scores = np.asarray(scores, dtype=np.float64)
     free = np.asarray(free, dtype=bool)
     chosen = scores[free] if free.any() else scores
