@@ -71,7 +71,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from nbvtrain.release import released_checkpoint
 
     checkpoint = args.checkpoint or released_checkpoint("scores")
-    predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius)
+    predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius, tta=args.tta)
     taken = None
     if args.grid.suffix == ".npy":
         try:
@@ -129,7 +129,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise PlanError(f"{flag} {path}: name a {suffix} file")
     config = load_config(SimConfig, args.config, args.overrides)
     result = plan(parse_vector(args.center, "--center"), scans=args.scans, octomap=args.octomap, size=args.size,
-                  up=args.up, checkpoint=args.checkpoint, config=config, max_range=args.max_range, device=args.device)
+                  up=args.up, checkpoint=args.checkpoint, config=config, max_range=args.max_range, device=args.device,
+                  tta=args.tta)
     answer = result.to_dict()
     if result.octomap is not None and not result.octomap["exact"]:
         print(f"nbvtrain plan: note: the map's voxels ({result.octomap['resolution']:g} m) are not the grid's "
@@ -176,7 +177,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from nbvdata.generate import mesh_sources
     from nbvdata.mesh import MeshError
     from nbvdata.views import view_sphere
-    from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
+    from nbvtrain.evaluate import evaluate, part_sources, settings_dict, write_outputs
     from nbvtrain.planners import PLANNERS, build_planners
 
     names = [name.strip() for name in args.planners.split(",") if name.strip()]
@@ -185,13 +186,28 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}, or a policy "
                           "module:function")
     config = load_config(SimConfig, args.config, args.overrides)
-    try:
-        sources, failures = mesh_sources(args.meshes)
-    except MeshError as error:
-        raise ConfigError(str(error)) from None
-    checkpoints = {"scores": args.score_checkpoint, "regression": args.checkpoint,
-                   "classification": args.class_checkpoint}
-    planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall)
+    selection = {}
+    if args.manifest is not None:
+        if args.part is None:
+            raise ConfigError("--manifest needs --part val, test or train: the part of its mesh split to evaluate")
+        sources, selection = part_sources(args.manifest, args.part, args.meshes)
+        failures = []
+    else:
+        if args.part is not None:
+            raise ConfigError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
+                              "whose mesh split it names")
+        if args.meshes is None:
+            raise ConfigError("no meshes given: --meshes DIR (a folder, one mesh file or a .txt list), or --manifest "
+                              "manifests/NAME-X.Y.Z.json --part val --meshes ROOT")
+        try:
+            sources, failures = mesh_sources(args.meshes)
+        except MeshError as error:
+            raise ConfigError(str(error)) from None
+    score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
+    weights = _numbers(args.hybrid_weight, "--hybrid-weight")
+    checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint}
+    planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall, args.tta,
+                                       weights, args.hybrid_stride)
     for message in skipped:
         print(f"nbvtrain evaluate: {message}", file=sys.stderr)
     if not planners:
@@ -200,10 +216,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     workers = args.workers or os.cpu_count() or 1
     report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers)
     report.failures = failures + report.failures
-    settings = settings_dict(config, meshes=args.meshes, planners=[p.name for p in planners], scans=args.scans,
-                             starts=args.starts, seed=args.seed,
-                             checkpoints={p.name: str(p.predictor.path) for p in planners if hasattr(p, "predictor")},
-                             no_stall=args.no_stall)
+    learned = {p.name: p.checkpoints for p in planners if hasattr(p, "checkpoints")}
+    recorded = {name: files[0] if len(files) == 1 else files for name, files in learned.items()}  # or an ensemble
+    settings = settings_dict(config, meshes=args.meshes, **selection, planners=[p.name for p in planners],
+                             scans=args.scans, starts=args.starts, seed=args.seed, checkpoints=recorded,
+                             no_stall=args.no_stall, tta=args.tta,
+                             **({"hybrid_weights": weights, "hybrid_stride": args.hybrid_stride}
+                                if "hybrid" in names else {}))
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
     runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
     print(f"nbvtrain evaluate: {plural(runs, 'reconstruction')} in {report.seconds:.1f} s; wrote "
@@ -211,6 +230,27 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for name, reason in report.failures:
         print(f"nbvtrain evaluate: failed: {name}: {reason}", file=sys.stderr)
     return 1 if report.failures else 0
+
+
+def _checkpoint_list(text: str | None, flag: str) -> list[Path] | None:
+    """``A.pt,B.pt`` -> [A.pt, B.pt]; None stays None (the released model)."""
+    if text is None:
+        return None
+    paths = [Path(part.strip()) for part in text.split(",") if part.strip()]
+    if not paths:
+        raise ConfigError(f"{flag} {text!r}: name one checkpoint, or several separated by commas (an ensemble)")
+    return paths
+
+
+def _numbers(text: str, flag: str) -> list[float]:
+    """``0.5,1,2`` -> [0.5, 1.0, 2.0]."""
+    try:
+        numbers = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        numbers = []
+    if not numbers:
+        raise ConfigError(f"{flag} {text!r}: expected comma-separated numbers, e.g. {flag} 0.5,1,2")
+    return numbers
 
 
 def cmd_release(args: argparse.Namespace) -> int:
@@ -290,6 +330,8 @@ def build_parser() -> Parser:
                          "(paper: 2.5 for its 1 m robot scene)")
     predict.add_argument("--radius", type=positive_float, help="view sphere radius, metres (default: the training "
                          "data's)")
+    predict.add_argument("--tta", action="store_true", help="quarter-turn test-time averaging (exact for regression "
+                         "networks and nbvscore-3; refused for the others)")
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
 
@@ -321,6 +363,8 @@ def build_parser() -> Parser:
     plan.add_argument("--save-grid", type=Path, help="write the grid the network saw (.npy, 32^3 probabilities, "
                       "0.5 = unknown, object frame)")
     plan.add_argument("--png", type=Path, help="write a picture of that grid with the scans and the chosen view")
+    plan.add_argument("--tta", action="store_true", help="quarter-turn test-time averaging (exact for regression "
+                      "networks and nbvscore-3; refused for the others)")
     plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
     plan.set_defaults(func=cmd_plan)
 
@@ -339,16 +383,28 @@ def build_parser() -> Parser:
     baselines.set_defaults(func=cmd_baselines)
 
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
-    evaluate.add_argument("--meshes", type=Path, required=True, help="folder of meshes, one mesh file, or a .txt list")
-    evaluate.add_argument("--score-checkpoint", type=Path, help="candidate-score checkpoint (a run of an nbvscore-* "
-                          f"model; default: the released one, {released['scores']})")
+    evaluate.add_argument("--meshes", type=Path, help="folder of meshes, one mesh file, or a .txt list; with "
+                          "--manifest the folder the version's meshes lie in or below (e.g. ../shared/meshes)")
+    evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
+                          "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
+    evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
+    evaluate.add_argument("--score-checkpoint", help="candidate-score checkpoint (a run of an nbvscore-* model; "
+                          f"default: the released one, {released['scores']}), or several separated by commas: an "
+                          "ensemble (mean of their standardised scores)")
+    evaluate.add_argument("--tta", action="store_true", help="quarter-turn test-time averaging for every learned "
+                          "planner (exact for regression networks and nbvscore-3; refused for the others)")
+    evaluate.add_argument("--hybrid-weight", default="1", help="the hybrid planner: weight of information gain "
+                          "against the score network, both standardised (default 1; several separated by commas "
+                          "give one planner each)")
+    evaluate.add_argument("--hybrid-stride", type=positive_int, default=4, help="the hybrid's information gain casts an image "
+                          "this many times coarser than the sensor's from every candidate view (default 4)")
     evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt; default: the "
                           f"released one, {released['regression']})")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
                           "is released: without one the classification planner is skipped)")
     evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
-                          help="comma-separated, of scores,regression,classification,infogain,oracle,random "
-                          "(default all), and policies on nbvdata.env's observation as module:function or "
+                          help="comma-separated, of scores,regression,classification,infogain,oracle,random,hybrid "
+                          "(default all but hybrid), and policies on nbvdata.env's observation as module:function or "
                           "path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "

@@ -29,7 +29,8 @@ Outputs in the folder ``out``:
                    mean row, the paper's Table 1 figures where an object matches), time per NBV,
                    and how often each planner broke the overlap rule
     plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
-    config.yaml    the simulation settings and the evaluation's arguments
+    config.yaml    the simulation settings and the evaluation's arguments (with ``--manifest``: the
+                   version's name, version, manifest sha256 and path, and the part evaluated)
     failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
                    (only when there are some)
 """
@@ -51,6 +52,7 @@ import yaml
 from nbvdata.config import SimConfig, to_dict
 from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.generate import MeshSource
+from nbvdata.manifest import find_part_meshes, load_manifest
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
@@ -395,6 +397,18 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
         plt.close(figure)
         paths.append(path)
     return paths
+
+
+def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) -> tuple[list[MeshSource], dict]:
+    """The meshes of ``part`` (train, val or test) of a published version's mesh split, each file
+    found in or below ``mesh_root`` by its name and sha256 (``nbvdata.manifest.find_part_meshes``:
+    ManifestError naming a missing or changed one), and what config.yaml records of the choice:
+    {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
+    published = load_manifest(manifest)
+    meshes = find_part_meshes(published, part, mesh_root)
+    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
+    record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
+    return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 
 
 def settings_dict(config: SimConfig, **arguments) -> dict:

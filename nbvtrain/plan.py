@@ -270,10 +270,11 @@ PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "sco
 """Planner by the checkpoint's task."""
 
 
-def load_planner(checkpoint: str | Path | None, device: str = "cpu") -> GridPlanner:
-    """The planner of a checkpoint (None: the released model, ``nbvtrain.release``)."""
+def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool = False) -> GridPlanner:
+    """The planner of a checkpoint (None: the released model, ``nbvtrain.release``); ``tta``:
+    quarter-turn test-time averaging where it is exact (``Predictor``; refused elsewhere)."""
     path = Path(checkpoint) if checkpoint is not None else released_checkpoint()
-    predictor = Predictor(path, device=device)
+    predictor = Predictor(path, device=device, tta=tta)
     task = predictor.model.task
     if task not in PLANNERS:
         raise PlanError(f"{path}: a {task} network, which plan cannot use yet: pass a "
@@ -330,6 +331,8 @@ class PlanResult:
             "source": self.source, "model": self.planner.name, "epoch": self.planner.epoch, **self.candidate,
             "network_output": self.raw.tolist(),
         }
+        if getattr(getattr(self.planner, "predictor", None), "tta", False):
+            result["tta"] = True  # the answer is the mean over the grid's four quarter turns
         if self.max_range is not None:
             result["max_range"] = self.max_range
         if self.octomap is not None:
@@ -340,10 +343,11 @@ class PlanResult:
 def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | Path | None = None,
          size: float | None = None, up: str | np.ndarray = "z", checkpoint: str | Path | None = None,
          config: SimConfig | None = None, max_range: float | None = None, device: str = "cpu",
-         planner: GridPlanner | None = None) -> PlanResult:
+         planner: GridPlanner | None = None, tta: bool = False) -> PlanResult:
     """The next-best-view for the object at ``center`` (world frame) from a scans file or an
-    OctoMap file (exactly one), with a checkpoint's network (None: the released model) or a ready
-    ``planner``. ``config``: the training data's scene (None: the default scene). PlanError,
+    OctoMap file (exactly one), with a checkpoint's network (None: the released model; ``tta``:
+    quarter-turn averaging, see ``load_planner``) or a ready ``planner``. ``config``: the training
+    data's scene (None: the default scene). PlanError,
     SensorDataError or CheckpointError, one line each, for unusable input."""
     config = config or SimConfig()
     if (scans is None) == (octomap is None):
@@ -370,7 +374,7 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
         raise PlanError(f"{source}: no occupied voxel in the object box ({side:.3f} m cube at --center "
                         f"{_text(frame.center)}): check --center, --size and --up, and that the data is "
                         "in the world frame")
-    planner = planner or load_planner(checkpoint, device)
+    planner = planner or load_planner(checkpoint, device, tta)
     if abs(planner.radius - config.views.radius) > 1e-3 * config.views.radius:
         raise PlanError(f"the network was trained with views at {planner.radius:g} m, the scene config has "
                         f"views.radius {config.views.radius:g} m: pass the training data's scene (--config)")

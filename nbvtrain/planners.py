@@ -6,7 +6,10 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 
 - ``scores``: a trained candidate-score network (``nbvscore-*``); the candidate view with the
   highest score among those not scanned yet (a scanned pose marks its nearest candidate view,
-  ``nbvdata.views.scanned_views``), so it never repeats a view.
+  ``nbvdata.views.scanned_views``), so it never repeats a view. Several checkpoints are an
+  ensemble: the mean of their scores, each standardised over the unscanned views
+  (``nbvtrain.scores.standardise``), so every network has one vote whatever the scale of its
+  scores (their losses fix them only up to a shift, and their sharpness grows with training).
 - ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
   candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
 - ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
@@ -27,10 +30,18 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 - ``random``: a seeded uniformly random candidate view.
 - ``module:function`` (or ``path/to/file.py:function``): a policy on the observation of the
   reconstruction environment ``nbvdata.env`` (``PolicyPlanner``), e.g. one trained by RL.
+- ``hybrid``: the score network's standardised scores plus ``weight`` times the standardised
+  information gain of every unscanned candidate view (``HybridPlanner``; 0 for a view that fails
+  the overlap estimate or adds nothing, as the networks' targets give a view that breaks the
+  overlap rule), from an image ``stride`` times coarser than the sensor's (the same field of
+  view): weight 0 is the network's choice, a large weight information gain's among the valid views.
+- ``tta`` (``nbvtrain evaluate --tta``): a learned planner averages its network's answers over
+  the four quarter turns about z where that is exact (``nbvtrain.predict.Predictor``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.util
 import math
@@ -38,6 +49,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numba
 import numpy as np
@@ -48,9 +60,9 @@ from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
 from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
 from nbvtrain.models import class_positions
-from nbvtrain.scores import pick
+from nbvtrain.scores import pick, standardise
 
-PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random")
+PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random", "hybrid")
 LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
 
 
@@ -82,30 +94,49 @@ class Planner:
 
 class LearnedPlanner(Planner):
     """A trained checkpoint (candidate scores, regression or classification), through
-    ``nbvtrain.predict``. ``views``: the run's candidate views (a score network's picks and the
-    no-stall rule are views of it); ``config``: the run's settings, which a checkpoint that
-    records its training scene must match (``nbvtrain.scene.check_scene``)."""
+    ``nbvtrain.predict``; for scores also several checkpoints, an ensemble. ``views``: the run's
+    candidate views (a score network's picks and the no-stall rule are views of it); ``config``:
+    the run's settings, which a checkpoint that records its training scene must match
+    (``nbvtrain.scene.check_scene``); ``tta``: quarter-turn test-time averaging (refused where it
+    is not exact). The name says which: ``scores``, ``scores-ens2``, ``regression-tta``, ..."""
 
-    def __init__(self, checkpoint: str | Path, radius: float, expect: str, views: ViewSet | None = None,
-                 no_stall: bool = False, config: SimConfig | None = None):
+    def __init__(self, checkpoint: str | Path | Sequence[str | Path], radius: float, expect: str,
+                 views: ViewSet | None = None, no_stall: bool = False, config: SimConfig | None = None,
+                 tta: bool = False):
         from nbvtrain.predict import Predictor
         from nbvtrain.scene import check_scene
 
-        self.predictor = Predictor(checkpoint, radius=radius)
-        task = self.predictor.model.task
-        if task != expect:
-            flag = {"classification": "--class-checkpoint", "scores": "--score-checkpoint"}.get(task, "--checkpoint")
-            raise ConfigError(f"{checkpoint}: a {task} network ({self.predictor.name}); pass it with {flag}")
-        if config is not None:
-            check_scene(self.predictor.scene, config, checkpoint)
-        if views is None and (task == "scores" or no_stall):
-            raise ValueError("a score network and the no-stall rule need the run's candidate views")
-        if task == "scores" and not np.allclose(views.unit_positions, self.predictor.view_units, atol=1e-9):
-            raise ConfigError(f"{checkpoint}: scores {len(self.predictor.view_units)} candidate views other than this "
-                              f"run's {len(views)}: run with the settings it was trained with (--config/--set views.*)")
-        self.views, self.no_stall = views, no_stall and task != "scores"
-        self.name = expect + ("-nostall" if self.no_stall else "")
-        self._arguments = (checkpoint, radius, expect, views, no_stall, config)
+        paths = [Path(checkpoint)] if isinstance(checkpoint, (str, Path)) else [Path(path) for path in checkpoint]
+        if not paths:
+            raise ValueError("no checkpoint given")
+        if len(paths) > 1 and expect != "scores":
+            raise ConfigError(f"{len(paths)} {expect} checkpoints: only score networks make an ensemble; pass one")
+        self.predictors = []
+        for path in paths:
+            predictor = Predictor(path, radius=radius, tta=tta)
+            task = predictor.model.task
+            if task != expect:
+                flags = {"classification": "--class-checkpoint", "scores": "--score-checkpoint"}
+                raise ConfigError(f"{path}: a {task} network ({predictor.name}); pass it with "
+                                  f"{flags.get(task, '--checkpoint')}")
+            if config is not None:
+                check_scene(predictor.scene, config, path)
+            if views is None and (task == "scores" or no_stall):
+                raise ValueError("a score network and the no-stall rule need the run's candidate views")
+            if task == "scores" and not np.allclose(views.unit_positions, predictor.view_units, atol=1e-9):
+                raise ConfigError(f"{path}: scores {len(predictor.view_units)} candidate views other than this run's "
+                                  f"{len(views)}: run with the settings it was trained with (--config/--set views.*)")
+            self.predictors.append(predictor)
+        self.predictor = self.predictors[0]
+        self.views, self.no_stall = views, no_stall and expect != "scores"
+        self.name = (expect + ("-nostall" if self.no_stall else "") + (f"-ens{len(paths)}" if len(paths) > 1 else "")
+                     + ("-tta" if tta else ""))
+        self._arguments = (checkpoint, radius, expect, views, no_stall, config, tta)
+
+    @property
+    def checkpoints(self) -> list[str]:
+        """The checkpoint files, one per network."""
+        return [str(predictor.path) for predictor in self.predictors]
 
     def __reduce__(self):
         """Pickled as its arguments: a worker process loads the checkpoint itself (the network's
@@ -117,10 +148,18 @@ class LearnedPlanner(Planner):
         positions = np.array([pose.position for pose in observation.poses]).reshape(-1, 3)
         return scanned_views(positions, self.views.unit_positions)
 
+    def view_scores(self, probabilities: np.ndarray, taken: np.ndarray) -> np.ndarray:
+        """(V,) the mean of the score networks' scores for a (n, n, n) grid and (V,) bool scanned
+        views, each standardised over the unscanned views (``nbvtrain.scores.standardise``), and
+        the mean standardised again: an increasing map of the scores for one network."""
+        free = ~taken
+        members = [standardise(predictor.raw(probabilities, taken)[0], free) for predictor in self.predictors]
+        return standardise(np.mean(members, axis=0), free)
+
     def next_view(self, observation: Observation) -> int:
         """A score network's choice as a candidate view index (``next_pose`` is its pose)."""
         taken = self.scanned(observation)
-        return int(pick(self.predictor.raw(observation.probabilities, taken), taken[None])[0])
+        return int(pick(self.view_scores(observation.probabilities, taken)[None], taken[None])[0])
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         task = self.predictor.model.task
@@ -143,6 +182,48 @@ class LearnedPlanner(Planner):
         if not len(free):
             return prediction.pose
         return self.views[int(free[np.argmax(units[free] @ prediction.direction)])]
+
+
+class HybridPlanner(LearnedPlanner):
+    """Candidate scores plus information gain: the unscanned candidate view with the largest
+    ``view_scores`` = standardised network scores (``LearnedPlanner.view_scores``: one network or
+    an ensemble) + ``weight`` x standardised information gain of every candidate view, the gain
+    set to 0 for a view that is not valid while some unscanned view is (valid: an overlap estimate
+    >= ``oracle.min_overlap`` and some information, as the oracle's valid views pass the rule and
+    add surface; ``InfoGainPlanner``: its views are the run's candidate views here,
+    its rays those of an image ``stride`` times coarser than the sensor's in each direction, with
+    the same field of view). Both terms are z-scores over the unscanned views, so ``weight`` is the
+    share of the spread each has at every step, whatever the networks' scale or the unknown
+    volume left (information in nats shrinks as the object is covered): weight 1 weighs them
+    equally, weight 0 is the network alone, a large weight information gain among the valid views
+    (the network breaking its ties)."""
+
+    def __init__(self, checkpoint: str | Path | Sequence[str | Path], config: SimConfig, views: ViewSet,
+                 weight: float, tta: bool = False, stride: int = 4):
+        if not (weight >= 0 and math.isfinite(weight)):
+            raise ConfigError(f"--hybrid-weight {weight}: must be a number >= 0 (0 = the network alone)")
+        if stride < 1:
+            raise ConfigError(f"--hybrid-stride {stride}: must be >= 1 (1 = every ray of the sensor's image)")
+        super().__init__(checkpoint, config.views.radius, "scores", views, config=config, tta=tta)
+        self.weight, self.min_overlap = float(weight), config.oracle.min_overlap
+        sensor = dataclasses.replace(config.sensor, width=-(-config.sensor.width // stride),
+                                     height=-(-config.sensor.height // stride))
+        self.infogain = None if weight == 0 else InfoGainPlanner(
+            config.scene_grid, sensor, config.views.radius, config.mesh.object_size, self.min_overlap,
+            count=len(views), layout=config.views.layout)
+        if self.infogain is not None and not np.allclose(self.infogain.views.positions, views.positions, atol=1e-9):
+            raise ValueError("the hybrid's information gain needs the run's candidate views (views.count, layout)")
+        self.name = f"hybrid-w{weight:g}" + self.name.removeprefix("scores")
+        self._arguments = (checkpoint, config, views, weight, tta, stride)  # LearnedPlanner.__reduce__
+
+    def view_scores(self, probabilities: np.ndarray, taken: np.ndarray) -> np.ndarray:
+        network = super().view_scores(probabilities, taken)
+        if self.infogain is None:
+            return network
+        scores, free = self.infogain.scores(probabilities), ~taken
+        valid = free & (scores.overlaps >= self.min_overlap) & (scores.information > 0)
+        information = np.where(valid if valid.any() else free, scores.information, 0.0)
+        return network + self.weight * standardise(information, free)
 
 
 class OraclePlanner(Planner):
@@ -367,25 +448,33 @@ def _ray_information(origins, ends, probabilities, resolution, first_key, box_lo
         first[v, r] = met
 
 
-def build_planners(names: list[str], config: SimConfig, views: ViewSet, checkpoints: dict[str, Path | None],
-                   no_stall: bool = False) -> tuple[list[Planner], list[str]]:
+def build_planners(names: list[str], config: SimConfig, views: ViewSet,
+                   checkpoints: dict[str, Path | Sequence[Path] | None], no_stall: bool = False, tta: bool = False,
+                   hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4) -> tuple[list[Planner], list[str]]:
     """The named planners, and a message for each learned one skipped for want of a checkpoint.
 
-    ``checkpoints``: task (scores, regression, classification) -> checkpoint file, None for the
-    released model of that task (``nbvtrain.release``) where there is one."""
+    ``checkpoints``: task (scores, regression, classification) -> checkpoint file (scores: also
+    several, an ensemble), None for the released model of that task (``nbvtrain.release``) where
+    there is one; ``hybrid`` takes the scores' and gives one planner per weight of
+    ``hybrid_weights``. ``tta``: quarter-turn averaging for every learned planner."""
     from nbvtrain.release import NoReleasedModel, released_checkpoint
 
     planners, skipped = [], []
     for name in names:
-        if name in LEARNED:
-            path = checkpoints.get(name)
+        if name in LEARNED or name == "hybrid":
+            task = "scores" if name == "hybrid" else name
+            path = checkpoints.get(task)
             if path is None:
                 try:
-                    path = released_checkpoint(name)
+                    path = released_checkpoint(task)
                 except NoReleasedModel as reason:
                     skipped.append(f"{name}: skipped, {reason}")
                     continue
-            planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config))
+            if name == "hybrid":
+                planners += [HybridPlanner(path, config, views, weight, tta, hybrid_stride)
+                             for weight in hybrid_weights]
+            else:
+                planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config, tta))
         elif name == "infogain":
             planners.append(InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                             config.oracle.min_overlap, layout=config.views.layout))

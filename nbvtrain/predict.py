@@ -28,7 +28,7 @@ from nbvdata.config import ConfigError
 from nbvdata.userarrays import GridError, check_grids
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions
+from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions, quarter_turns
 from nbvtrain.scores import pick
 
 
@@ -46,13 +46,32 @@ class NBVPrediction:
                 "direction": self.direction.tolist(), "network_output": self.raw.tolist()}
 
 
-class Predictor:
-    """A checkpoint loaded for inference (eval mode, no gradients)."""
+TURNS = (0, 1, 2, 3)  # the quarter turns about z that test-time averaging (``tta``) adds up
 
-    def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
+
+class Predictor:
+    """A checkpoint loaded for inference (eval mode, no gradients).
+
+    ``tta``: quarter-turn test-time averaging, where it is exact: the grid is also turned by 1, 2
+    and 3 quarter turns about z (``nbvtrain.data.rotate_quarter_turns``), each turned grid is an
+    exact sample of the same state turned, and the four answers are turned back and averaged: a
+    regression network's positions turned back by the inverse turn, a score network that takes
+    its views as inputs (``nbvscore-3``, ``ScoreNet.turns``) scoring each view at its turned
+    direction (``ScoreNet.head``'s ``turns``). ConfigError for the others, whose outputs quarter
+    turns do not map onto each other (the 14 class views, the output views of ``nbvscore-fc3``).
+    """
+
+    def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None,
+                 tta: bool = False):
         path = self.path = Path(checkpoint)
         state = load_checkpoint(path)
         self.model: NBVNet | ScoreNet = model_from(state, path)
+        if tta and (self.model.task == "classification" or (self.model.task == "scores" and not self.model.turns)):
+            outputs = ("its 14 class views" if self.model.task == "classification" else
+                       "its candidate views, which are outputs (nbvscore-3 takes them as inputs),")
+            raise ConfigError(f"{path}: quarter-turn averaging (--tta) is not exact for {state['model']}: quarter "
+                              f"turns do not map {outputs} onto each other; drop --tta for it")
+        self.tta = bool(tta)
         try:
             self.device = torch.device(device)
             self.model.to(self.device).eval()
@@ -72,14 +91,24 @@ class Predictor:
     def raw(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
         """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
         positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
-        scanned views, default none). GridError (a ValueError) for a bad grid (``check_grids``)."""
-        grids = torch.from_numpy(check_grids(grids, GRID_SIZE)).to(self.device).unsqueeze(1)
+        scanned views, default none); with ``tta`` the mean of the four quarter turns' outputs,
+        turned back. GridError (a ValueError) for a bad grid (``check_grids``)."""
+        grids = check_grids(grids, GRID_SIZE)
+        batch, turns = len(grids), TURNS if self.tta else (0,)
+        if self.tta:  # (4B, n, n, n): the grids turned by 0..3 quarter turns, turn by turn
+            grids = np.ascontiguousarray(np.concatenate([np.rot90(grids, turn, axes=(1, 2)) for turn in turns]))
+        grids = torch.from_numpy(grids).to(self.device).unsqueeze(1)
         with torch.inference_mode():
             if self.model.task != "scores":
-                return self.model.head(self._features(grids)).cpu().numpy().astype(np.float64)
-            state = self.taken(taken, len(grids))
-            features = self._features(self.model.encode(grids))
-            return self.model.head(features, torch.from_numpy(state).to(self.device)).cpu().numpy().astype(np.float64)
+                outputs = self.model.head(self._features(grids)).cpu().numpy().astype(np.float64)
+                if not self.tta:
+                    return outputs
+                outputs = outputs.reshape(len(turns), batch, -1)  # regression: positions turned back
+                return np.mean([quarter_turns(outputs[turn], -turn) for turn in turns], axis=0)
+            state = torch.from_numpy(np.tile(self.taken(taken, batch), (len(turns), 1))).to(self.device)
+            turned = torch.arange(len(turns), device=self.device).repeat_interleave(batch) if self.tta else None
+            scores = self.model.head(self._features(self.model.encode(grids)), state, turned)
+            return scores.cpu().numpy().astype(np.float64).reshape(len(turns), batch, -1).mean(axis=0)
 
     def taken(self, taken: np.ndarray | None, batch: int) -> np.ndarray:
         """(B, V) bool view states of a score network from (V,), (B, V) or None (nothing scanned)."""
@@ -160,8 +189,11 @@ def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: tor
 def prediction_dict(prediction: NBVPrediction, predictor: Predictor, source: str,
                     taken: np.ndarray | None = None) -> dict:
     """The answer ``nbvtrain predict`` prints as JSON for one grid; for a score network also the
-    chosen candidate ``view`` and the ``scanned`` views it was told of (``candidate_fields``)."""
+    chosen candidate ``view`` and the ``scanned`` views it was told of (``candidate_fields``);
+    ``tta``: true with quarter-turn averaging."""
     extra = candidate_fields(predictor.view_units, prediction.direction, taken)
+    if predictor.tta:
+        extra["tta"] = True
     return {"source": source, "checkpoint": str(predictor.path), "model": predictor.name, "epoch": predictor.epoch,
             "radius": predictor.radius, "k": predictor.k, **extra, **prediction.to_dict()}
 

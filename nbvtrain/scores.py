@@ -15,7 +15,9 @@ ranking and weigh 0):
 - ``argmax``: cross-entropy with the label alone (a 500-class classifier; the ablation's control
   for what the full vectors add).
 
-The choice of a score network is the unscanned view with the highest score (``pick``).
+The choice of a score network is the unscanned view with the highest score (``pick``). Scores
+of several sources (the networks of an ensemble, information gain) are combined after
+``standardise``, which puts each on the same scale over the views that can be chosen.
 """
 
 from __future__ import annotations
@@ -68,3 +70,15 @@ def pick(scores: np.ndarray | torch.Tensor, taken: np.ndarray | torch.Tensor) ->
     taken = torch.as_tensor(taken, dtype=torch.bool)
     full = taken.all(dim=1, keepdim=True)
     return scores.masked_fill(taken & ~full, float("-inf")).argmax(dim=1).cpu().numpy()
+
+
+def standardise(scores: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(V,) scores as z-scores over the ``free`` (V,) bool views (those that can be chosen; all
+    views when none is free): minus their mean, over their standard deviation (kept unscaled
+    when that is 0). An increasing affine map, so the order of the views - and ``pick`` - stays;
+    invariant (up to rounding) to any positive scale and shift of ``scores``."""
+    scores = np.asarray(scores, dtype=np.float64)
+    free = np.asarray(free, dtype=bool)
+    chosen = scores[free] if free.any() else scores
+    spread = chosen.std()
+    return (scores - chosen.mean()) / (spread if spread > 0 else 1.0)

@@ -1,0 +1,211 @@
+#!/usr/bin/env bash
+# Issue 27's recipe, stage by stage (docs/selection.md): the data (the 150 shared train meshes and the
+# 999 usable procedural objects of ../shared/meshes/extra, 14 runs each, exploration 0.25), its
+# publication as train-meshes 1.2.0 (no test part: the test objects are ../shared/meshes/test), each
+# network fitted in sittings (fit --resume: bit-exact) with a snapshot evaluated in closed loop on the
+# version's validation objects after every sitting, the ideas measured on the same objects, and the
+# one evaluation of the test objects at the end. Every choice reads validation objects only.
+#
+#   benchmarks/selection.sh data                  # generate (resumable: run it again after a kill)
+#   benchmarks/selection.sh publish               # manifests/train-meshes-1.2.0.json, then verify it
+#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3 or regression;
+#                                                 # run it again until it says the validation stopped improving
+#   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
+#   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
+#   benchmarks/selection.sh table                 # every validation result so far, as one table
+#   SMOKE=1 benchmarks/selection.sh all           # every stage at a tiny budget (4 meshes, the smoke
+#                                                 # scene, 1 epoch a sitting) into runs/smoke-selection
+#
+# Run from the repository root with the package installed. Settings (environment): WORKERS (evaluate and
+# generate processes, 2), THREADS (torch threads of fit, 1), EPOCHS_PER_SITTING (2; SMOKE 1), PATIENCE
+# (sittings without a new best before a network counts as converged, 3; SMOKE 1), SELECT_BY (the mean that
+# ranks: shared, all or procedural; default shared), OUT (runs/selection), MESHES (../shared/meshes).
+set -euo pipefail
+
+SMOKE=${SMOKE:-0}
+MESHES=${MESHES:-../shared/meshes}
+WORKERS=${WORKERS:-2}
+THREADS=${THREADS:-1}
+SELECT_BY=${SELECT_BY:-shared}
+VERSION=1.2.0
+if [ "$SMOKE" = 1 ]; then
+    OUT=${OUT:-runs/smoke-selection}
+    EPOCHS_PER_SITTING=${EPOCHS_PER_SITTING:-1}
+    PATIENCE=${PATIENCE:-1}
+    NAME=selection-smoke
+    DATA=$OUT/data
+    MANIFESTS=$OUT/manifests
+    LIST=$OUT/meshes.txt
+    TEST_MESHES=$OUT/test-meshes.txt
+    SCENE=(--config configs/smoke.yaml)             # generate, evaluate: the tiny scene of the tests
+    EVAL=(--scans 3 --starts 0 --seed 1)
+    BATCH=(--batch-size 16)
+else
+    OUT=${OUT:-runs/selection}
+    EPOCHS_PER_SITTING=${EPOCHS_PER_SITTING:-2}
+    PATIENCE=${PATIENCE:-3}
+    NAME=train-meshes
+    DATA=data/train-meshes-$VERSION
+    MANIFESTS=manifests
+    LIST=configs/train-meshes-$VERSION.txt
+    TEST_MESHES=$MESHES/test/
+    SCENE=()                                        # the default (fitted) scene, as train-meshes 1.1.0
+    EVAL=(--scans 10 --starts 2 --seed 1)           # as the released models' card
+    BATCH=(--batch-size 64)
+fi
+MANIFEST=$MANIFESTS/$NAME-$VERSION.json
+VAL=$OUT/val                                        # one folder per evaluation on the validation objects
+log() { printf '\n== %s\n' "$*" >&2; }
+
+smoke_lists() {  # 2 shared train meshes and 2 procedural objects; 2 test objects
+    mkdir -p "$OUT"
+    local root
+    root=$(cd "$MESHES" && pwd)
+    printf '%s\n' "$root/train/milk__robosuite.stl" "$root/train/bread__robosuite.stl" \
+        "$root/extra/pybullet_random_urdfs/random_400.obj" "$root/extra/pybullet_random_urdfs/random_401.obj" > "$LIST"
+    printf '%s\n' "$root/test/sphere__trimesh.stl" "$root/test/teapot__alecjacobson.obj" > "$TEST_MESHES"
+}
+
+stage_data() {
+    [ "$SMOKE" = 1 ] && smoke_lists
+    if [ "$SMOKE" != 1 ] && [ -d data/train-explore ] && [ ! -e "$DATA" ]; then
+        # train-meshes 1.1.0's shards: the same settings and seeds give the same units, byte for byte,
+        # so hard links of them are 550 meshes done (nbvdata verify checks them at publish time)
+        log "reusing the 549 meshes of data/train-explore (hard links)"
+        mkdir -p "$DATA"
+        cp -l data/train-explore/*.h5 data/train-explore/config.yaml "$DATA"/
+    fi
+    log "generate: $LIST -> $DATA"
+    nice -n 10 nbvdata generate --meshes "$LIST" --out "$DATA" --runs-per-mesh 14 --explore 0.25 \
+        --workers "$WORKERS" "${SCENE[@]}"
+}
+
+stage_publish() {
+    log "publish $NAME $VERSION"
+    nbvdata publish "$DATA" --name "$NAME" --version "$VERSION" --manifests "$MANIFESTS" --meshes "$MESHES" \
+        --test-fraction 0 --notes "Issue 27's data: the 150 shared train meshes and the 999 usable procedural \
+objects of ../shared/meshes/extra/pybullet_random_urdfs (random_000-999 but random_168: NaN vertices), 14 runs \
+each from random start views, exploration epsilon 0.25, default (fitted) scene; its validation meshes choose \
+every setting (benchmarks/selection.sh). Made with: nbvdata generate --meshes configs/train-meshes-1.2.0.txt \
+--out data/train-meshes-1.2.0 --runs-per-mesh 14 --explore 0.25"
+    nbvdata verify "$MANIFEST"
+}
+
+fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a run extended is the same run)
+    case $1 in
+        scores-fc3) echo "--model nbvscore-fc3 --score-loss regression --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
+        scores-3) echo "--model nbvscore-3 --score-loss regression --augment --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
+        regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
+        *) echo "unknown network $1: scores-fc3, scores-3 or regression" >&2; exit 2 ;;
+    esac
+}
+
+planner_of() { [ "$1" = regression ] && echo "regression --checkpoint" || echo "scores --score-checkpoint"; }
+
+epochs_done() { [ -f "$1/metrics.csv" ] && echo $(( $(wc -l < "$1/metrics.csv") - 1 )) || echo 0; }
+
+evaluate_val() {  # OUT_NAME EVALUATE_FLAGS...: one closed-loop evaluation of the validation objects
+    local out=$VAL/$1
+    shift
+    [ -f "$out/coverage.csv" ] && return 0             # done before: evaluations are deterministic
+    log "validation objects: $out"
+    rm -rf "$out"
+    nice -n 10 nbvtrain evaluate --manifest "$MANIFEST" --part val --meshes "$MESHES" "${EVAL[@]}" \
+        --workers "$WORKERS" "${SCENE[@]}" --out "$out" --no-progress "$@"
+}
+
+stage_fit() {
+    local net=$1 run=$OUT/fit/$1 done target planner flag snapshot
+    read -r planner flag <<< "$(planner_of "$net")"
+    mkdir -p "$run/snapshots"
+    done=$(epochs_done "$run")
+    snapshot=$run/snapshots/epoch-$(printf %03d "$done").pt
+    if [ "$done" -gt 0 ] && [ $(( done % EPOCHS_PER_SITTING )) -eq 0 ] && [ ! -f "$snapshot" ]; then
+        cp "$run/last.pt" "$snapshot"                   # a sitting whose snapshot was not taken yet
+    elif converged "$net"; then
+        log "$net: no new best on the validation objects in the last $PATIENCE sittings: converged"
+        table "$VAL/$net-e"*
+        return 0
+    else
+        target=$(( (done / EPOCHS_PER_SITTING + 1) * EPOCHS_PER_SITTING ))
+        log "$net: sitting to epoch $target (Ctrl-C saves; run this again to resume)"
+        if [ -f "$run/config.yaml" ]; then
+            nice -n 10 nbvtrain fit --resume --out "$run" --epochs "$target" --no-progress
+        else
+            # shellcheck disable=SC2046
+            nice -n 10 nbvtrain fit "$MANIFEST" --split mesh $(fit_flags "$net") "${BATCH[@]}" --epochs "$target" \
+                --threads "$THREADS" --out "$run" --no-progress
+        fi
+        snapshot=$run/snapshots/epoch-$(printf %03d "$target").pt
+        cp "$run/last.pt" "$snapshot"
+    fi
+    for snapshot in "$run"/snapshots/epoch-*.pt; do    # every snapshot not evaluated yet (after a kill too)
+        local epoch=${snapshot##*/epoch-}
+        evaluate_val "$net-e${epoch%.pt}" --planners "$planner" "$flag" "$snapshot"
+    done
+    table "$VAL/$net-e"*
+    converged "$net" && log "$net: converged (no new best in the last $PATIENCE sittings)" || true
+}
+
+converged() { [ -n "$(ls -d "$VAL/$1-e"* 2>/dev/null)" ] && python benchmarks/selection_table.py --by "$SELECT_BY" \
+    --stopped "$PATIENCE" "$VAL/$1-e"*; }
+
+best() { python benchmarks/selection_table.py --by "$SELECT_BY" --top 1 "$VAL/$1-e"*; }
+
+table() { python benchmarks/selection_table.py --by "$SELECT_BY" "$@"; }
+
+stage_select() {
+    local fc3 three regression top
+    fc3=$(best scores-fc3)
+    three=$(best scores-3)
+    regression=$(best regression)
+    log "best snapshots on the validation objects: $fc3, $three, $regression"
+    evaluate_val baselines --planners infogain,oracle,random
+    evaluate_val regression-nostall --planners regression --checkpoint "$regression" --no-stall
+    evaluate_val regression-tta --planners regression --checkpoint "$regression" --tta
+    evaluate_val scores-3-tta --planners scores --score-checkpoint "$three" --tta
+    evaluate_val ensemble-fc3-3 --planners scores --score-checkpoint "$fc3,$three"
+    # the three best snapshots of nbvscore-3 as an ensemble (no more training)
+    top=$(table --top 3 "$VAL"/scores-3-e*)
+    evaluate_val ensemble-scores-3-snapshots --planners scores --score-checkpoint "$top"
+    # the hybrid on the better score network; weights 0.25..2 in one run (one scene build per object)
+    local winner
+    winner=$(table --top 1 "$VAL"/scores-fc3-e* "$VAL"/scores-3-e*)
+    evaluate_val hybrid --planners hybrid --score-checkpoint "$winner" --hybrid-weight 0.25,0.5,1,2
+    table "$VAL"/*
+}
+
+stage_test() {
+    if [ -e "$OUT/test" ]; then
+        echo "selection.sh test: $OUT/test exists: the test objects are evaluated once, at the end" >&2
+        exit 2
+    fi
+    : "${FINAL_SCORES:?set FINAL_SCORES to the score checkpoint(s) the validation objects chose (comma-separated: an ensemble)}"
+    : "${FINAL_REGRESSION:?set FINAL_REGRESSION to the regression checkpoint the validation objects chose}"
+    local planners=${FINAL_PLANNERS:-scores,regression,infogain,oracle,random}
+    log "the test objects, once: $TEST_MESHES"
+    # shellcheck disable=SC2086
+    nice -n 10 nbvtrain evaluate --meshes "$TEST_MESHES" --planners "$planners" --score-checkpoint "$FINAL_SCORES" \
+        --checkpoint "$FINAL_REGRESSION" ${FINAL_FLAGS:-} "${EVAL[@]}" --workers "$WORKERS" "${SCENE[@]}" \
+        --out "$OUT/test" --no-progress
+    table "$OUT/test"
+}
+
+case ${1:-} in
+    data) stage_data ;;
+    publish) stage_publish ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3 or regression}" ;;
+    select) stage_select ;;
+    test) stage_test ;;
+    table) table "$VAL"/* ;;
+    all)
+        [ "$SMOKE" = 1 ] || { echo "selection.sh all: only with SMOKE=1 (the real stages take days)" >&2; exit 2; }
+        rm -rf "$OUT"
+        stage_data
+        stage_publish
+        for net in scores-fc3 scores-3 regression; do stage_fit $net; done
+        stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
+        stage_select
+        FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
+    *) sed -n '2,22p' "$0" >&2; exit 2 ;;
+esac

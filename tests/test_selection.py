@@ -1,0 +1,185 @@
+"""The selection protocol: ``nbvtrain evaluate --manifest M --part P --meshes ROOT`` evaluates
+exactly the meshes of that part of a published version's mesh split, found by the file names and
+sha256 the manifest records, and refuses a changed or missing file, an unknown or empty part, in
+one line (exit 2); config.yaml records which version and part chose what."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import trimesh
+import yaml
+
+from nbvdata.config import SimConfig, load_config
+from nbvdata.generate import generate, mesh_sources
+from nbvdata.manifest import ManifestError, find_part_meshes, load_manifest, publish
+from nbvdata.shapes import BUILTIN_SHAPES
+from nbvtrain.cli import main
+
+from conftest import MESHES, need
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "configs" / "smoke.yaml"
+NAMES = ("mug", "ring", "pill", "snowman", "step_block")
+
+
+@pytest.fixture(scope="module")
+def version(tmp_path_factory) -> tuple[Path, Path]:
+    """Five mesh files, one run each in a tiny scene, published as sel 1.0.0 with a train, val
+    and test part: (the manifest, the folder of the meshes, nested one level down)."""
+    base = tmp_path_factory.mktemp("version")
+    folder = base / "meshes" / "objects"
+    folder.mkdir(parents=True)
+    for name in NAMES:
+        BUILTIN_SHAPES[name]().export(folder / f"{name}.obj")
+    sources, failures = mesh_sources(folder)
+    config = load_config(SimConfig, SMOKE, ["episode.runs_per_mesh=1", "episode.max_scans=2", "generate.workers=1"])
+    assert not failures and not generate(sources, base / "shards", config).failures
+    result = publish(base / "shards", "sel", "1.0.0", base / "manifests", val_fraction=0.2, test_fraction=0.2)
+    return result.path, base / "meshes"
+
+
+def _copy(meshes: Path, where: Path) -> Path:
+    return Path(shutil.copytree(meshes, where))
+
+
+def _part_ids(manifest: Path, part: str) -> list[str]:
+    return json.loads(manifest.read_text())["splits"]["mesh"][part]["meshes"]
+
+
+def test_each_part_finds_exactly_its_meshes_by_name_and_sha256(version, tmp_path):
+    manifest, meshes = version
+    root = _copy(meshes, tmp_path / "root")
+    # a decoy: a file of the same name elsewhere under the root, with other content, sorted first
+    decoy = root / "a-old" / "mug.obj"
+    decoy.parent.mkdir()
+    trimesh.creation.box().export(decoy)
+    published = load_manifest(manifest)
+    seen = []
+    for part in ("train", "val", "test"):
+        found = find_part_meshes(published, part, root)
+        assert [mesh.mesh_id for mesh in found] == _part_ids(manifest, part)
+        for mesh in found:
+            assert mesh.path.name == mesh.source and mesh.path != decoy
+            assert hashlib.sha256(mesh.path.read_bytes()).hexdigest() == mesh.mesh_id
+        seen += [mesh.source for mesh in found]
+    assert sorted(seen) == sorted(f"{name}.obj" for name in NAMES)  # the parts cover the version, once each
+
+
+def test_evaluate_runs_the_val_meshes_and_records_the_version(version, tmp_path, capsys):
+    manifest, meshes = version
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--manifest", str(manifest), "--part", "val", "--meshes", str(meshes),
+                 "--planners", "random", "--scans", "2", "--config", str(SMOKE), "--out", str(out),
+                 "--no-progress"]) == 0
+    (val,) = find_part_meshes(load_manifest(manifest), "val", meshes)
+    with open(out / "coverage.csv") as handle:
+        assert {row["mesh"] for row in csv.DictReader(handle)} == {Path(val.source).stem}
+    record = yaml.safe_load((out / "config.yaml").read_text())["evaluate"]["manifest"]
+    assert record == {"name": "sel", "version": "1.0.0", "sha256": hashlib.sha256(manifest.read_bytes()).hexdigest(),
+                      "path": str(manifest.resolve()), "part": "val", "meshes": 1}
+
+
+def test_a_changed_mesh_is_refused_naming_it(version, tmp_path, capsys):
+    manifest, meshes = version
+    root = _copy(meshes, tmp_path / "root")
+    (val,) = find_part_meshes(load_manifest(manifest), "val", root)
+    with open(val.path, "a") as handle:
+        handle.write("# one more line: another file, another sha256\n")
+    assert main(["evaluate", "--manifest", str(manifest), "--part", "val", "--meshes", str(root),
+                 "--planners", "random", "--out", str(tmp_path / "eval")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(val.path) in err and "sha256 differs" in err
+    assert not (tmp_path / "eval").exists()
+
+
+def test_a_missing_mesh_is_refused_naming_it(version, tmp_path, capsys):
+    manifest, meshes = version
+    root = _copy(meshes, tmp_path / "root")
+    (test,) = find_part_meshes(load_manifest(manifest), "test", root)
+    test.path.unlink()
+    assert main(["evaluate", "--manifest", str(manifest), "--part", "test", "--meshes", str(root),
+                 "--planners", "random", "--out", str(tmp_path / "eval")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and test.source in err and "not found" in err
+    with pytest.raises(ManifestError, match="pass --meshes ROOT"):  # files, but no folder to find them in
+        find_part_meshes(load_manifest(manifest), "val", None)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--part", "validation"], "choose train, val or test"),
+    ([], "--manifest needs --part"),
+])
+def test_an_unknown_or_missing_part_is_refused(version, tmp_path, capsys, flags, message):
+    manifest, meshes = version
+    assert main(["evaluate", "--manifest", str(manifest), *flags, "--meshes", str(meshes), "--planners", "random",
+                 "--out", str(tmp_path / "eval")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and message in err
+
+
+def test_an_empty_part_and_a_part_without_a_manifest_are_refused(version, tmp_path, capsys):
+    manifest, meshes = version
+    root = manifest.parent.parent
+    empty = publish(root / "shards", "sel", "1.1.0", tmp_path / "manifests", test_fraction=0).path
+    assert main(["evaluate", "--manifest", str(empty), "--part", "test", "--meshes", str(meshes),
+                 "--out", str(tmp_path / "eval")]) == 2
+    assert "holds no meshes (published with --test-fraction 0" in capsys.readouterr().err
+    assert main(["evaluate", "--part", "val", "--meshes", str(meshes), "--out", str(tmp_path / "eval")]) == 2
+    assert "--part val needs --manifest" in capsys.readouterr().err
+
+
+def test_built_in_shapes_of_a_version_need_no_files():
+    """builtin-shapes 1.2.0 (published): its parts are built-in shapes, checked by their mesh ids."""
+    published = load_manifest(ROOT / "manifests" / "builtin-shapes-1.2.0.json")
+    for part in ("train", "val", "test"):
+        found = find_part_meshes(published, part, None)
+        assert [mesh.mesh_id for mesh in found] == published.content["splits"]["mesh"][part]["meshes"]
+        assert all(mesh.path is None and mesh.source.startswith("builtin:") for mesh in found)
+
+
+def test_the_released_versions_val_part_is_found_in_the_shared_meshes():
+    """train-meshes 1.1.0's val meshes: shared train meshes and procedural objects of extra/."""
+    need(MESHES / "extra")
+    found = find_part_meshes(load_manifest(ROOT / "manifests" / "train-meshes-1.1.0.json"), "val", MESHES)
+    folders = {mesh.path.parent.name for mesh in found}
+    assert len(found) == 110 and folders == {"train", "pybullet_random_urdfs"}
+    assert sum(mesh.path.parent.name == "pybullet_random_urdfs" for mesh in found) == 85
+
+
+def _evaluation(folder: Path, finals: dict[str, float], checkpoint: str) -> Path:
+    """A fake evaluate folder: one start per mesh, 2 scans, the given final coverage per mesh."""
+    folder.mkdir(parents=True)
+    lines = ["mesh,planner,start,start_view,scan,coverage,observable_coverage,seconds,x,y,z,overlap,valid_views"]
+    for mesh, final in finals.items():
+        lines += [f"{mesh},scores,0,0,1,0.1,0.1,0,0,0,0,,", f"{mesh},scores,0,0,2,{final},{final},0.002,0,0,0,0.5,3"]
+    (folder / "coverage.csv").write_text("\n".join(lines) + "\n")
+    settings = {"evaluate": {"meshes": None, "manifest": {"name": "v", "version": "1.0.0", "part": "val"},
+                             "checkpoints": {"scores": checkpoint}}}
+    (folder / "config.yaml").write_text(yaml.safe_dump(settings))
+    return folder
+
+
+def test_the_selection_table_ranks_by_the_shared_meshes_and_says_when_a_run_stopped_improving(tmp_path):
+    """benchmarks/selection_table.py, which the recipe's convergence rule and choices read."""
+    import subprocess
+    import sys
+
+    script = ROOT / "benchmarks" / "selection_table.py"
+    shared = {2: 0.80, 4: 0.90, 6: 0.85, 8: 0.88}  # epoch -> shared-mesh coverage; procedural falls as shared rises
+    folders = [_evaluation(tmp_path / f"net-e{epoch:03d}", {"cup": value, "random_007": 1.5 - value},
+                           f"epoch-{epoch}.pt") for epoch, value in shared.items()]
+
+    def run(*args):
+        return subprocess.run([sys.executable, str(script), *args, *map(str, folders)], capture_output=True, text=True)
+
+    assert run("--top", "2").stdout.strip() == "epoch-4.pt,epoch-8.pt"
+    assert run("--top", "1", "--by", "procedural").stdout.strip() == "epoch-2.pt"
+    assert run("--stopped", "2").returncode == 0 and run("--stopped", "3").returncode == 1
+    table = run().stdout
+    assert "| net-e004 | scores **best** | v 1.0.0 val | 2 | 2 | 75.0 | 90.0 | 60.0 | 2.0 | epoch-4.pt |" in table
