@@ -1,0 +1,114 @@
+"""Set-cover labels: agreement with brute force, the reuse rules, canonical sets, time limits."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from nbvdata.oracle import ViewOracle, pack_bits, popcount
+from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
+
+
+def _instance(rng, views: int, points: int, density: float) -> ViewOracle:
+    visible = rng.random((views, points)) < density
+    visible[:, rng.random(points) < 0.1] = False  # some points no view sees: not observable
+    return ViewOracle(visible)
+
+
+def _brute_force(oracle: ViewOracle, covered: np.ndarray) -> tuple[int, tuple[int, ...]]:
+    """(optimum, lexicographically smallest optimal cover) by trying every set, smallest first."""
+    remaining = oracle.observable & ~covered
+    if popcount(remaining) == 0:
+        return 0, ()
+    for size in range(1, len(oracle) + 1):
+        for views in itertools.combinations(range(len(oracle)), size):  # lexicographic order
+            if popcount(remaining & ~np.bitwise_or.reduce(oracle.visible[list(views)], axis=0)) == 0:
+                return size, views
+    raise AssertionError("the observable points always have a cover")
+
+
+def _covers(oracle: ViewOracle, covered: np.ndarray, views) -> bool:
+    union = covered.copy()
+    for v in views:
+        union |= oracle.visible[v]
+    return popcount(oracle.observable & ~union) == 0
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_optimum_and_canonical_set_equal_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    oracle = _instance(rng, views=int(rng.integers(4, 15)), points=int(rng.integers(10, 80)),
+                       density=float(rng.uniform(0.08, 0.4)))
+    scanned = rng.choice(len(oracle), size=int(rng.integers(0, 3)), replace=False)
+    covered = np.bitwise_or.reduce(oracle.visible[scanned], axis=0) if len(scanned) else np.zeros_like(oracle.observable)
+    cover = solve_cover(oracle, covered, time_limit=30)
+    optimum, smallest = _brute_force(oracle, covered)
+    assert _covers(oracle, covered, cover.views)
+    assert cover.proved and cover.size == optimum and cover.bound == optimum
+    assert cover.bound <= cover.size <= cover.greedy == len(greedy_cover(oracle, covered))
+    # from scratch: the greedy cover when it is optimal, else the lexicographically smallest optimal set
+    greedy = greedy_cover(oracle, covered)
+    assert cover.views == (tuple(sorted(greedy)) if len(greedy) == optimum else smallest)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_run_labels_follow_the_reuse_rules_and_stay_optimal(seed):
+    """Along a run of random moves, every label is an optimal cover, its size drops by at most one
+    per scan, and when the view scanned was in the previous cover the rest of it is the label."""
+    rng = np.random.default_rng(100 + seed)
+    oracle = _instance(rng, views=int(rng.integers(6, 14)), points=60, density=0.15)
+    covered = np.zeros_like(oracle.observable)
+    previous = solve_cover(oracle, covered, 30)
+    assert previous.size == _brute_force(oracle, covered)[0]
+    for view in rng.permutation(len(oracle))[:6]:
+        covered = covered | oracle.visible[view]
+        label = next_cover(oracle, covered, previous, int(view), 30)
+        optimum = _brute_force(oracle, covered)[0]
+        assert _covers(oracle, covered, label.views) and label.proved and label.size == optimum
+        assert previous.size - 1 <= label.size <= previous.size
+        if view in previous.views:
+            assert label.views == tuple(v for v in previous.views if v != view)
+        previous = label
+
+
+def test_a_scan_that_is_no_candidate_gives_no_lower_bound():
+    """A live scan may cover points of several views: the label is still optimal, found without
+    the opt - 1 bound (which would be wrong here: two views' points go at once)."""
+    visible = np.zeros((4, 4), dtype=bool)
+    visible[0, 0] = visible[1, 1] = visible[2, 2] = visible[3, 3] = True
+    oracle = ViewOracle(visible)
+    previous = solve_cover(oracle, np.zeros_like(oracle.observable), 10)
+    assert previous.size == 4
+    covered = pack_bits(np.array([True, True, False, False]))
+    label = next_cover(oracle, covered, previous, None, 10)
+    assert label.views == (2, 3) and label.proved
+
+
+def test_reductions_keep_the_minimal_covering_sets_and_the_undominated_views():
+    visible = np.array([[1, 1, 1, 0],   # view 0 sees points 0-2
+                        [1, 0, 0, 0],   # view 1: a subset of view 0's rows
+                        [0, 1, 1, 1],
+                        [0, 0, 0, 1]], dtype=bool)
+    oracle = ViewOracle(visible)
+    rows = _minimal_rows(oracle, oracle.observable)
+    # point covering sets: p0 {0, 1}, p1 {0, 2}, p2 {0, 2}, p3 {2, 3}: p1 and p2 merge, none holds another
+    assert sorted(tuple(np.flatnonzero(r)) for r in rows) == [(0, 1), (0, 2), (2, 3)]
+    # view 1 covers only row {0, 1}, which view 0 covers too; view 3 only row {2, 3}, as view 2
+    assert _candidates(rows).tolist() == [True, False, True, False]
+
+
+def test_a_state_that_hits_the_time_limit_keeps_a_cover_and_a_true_bound(monkeypatch):
+    """With no time at all the solver proves nothing: the label is the best cheap cover with a
+    lower bound no larger than the optimum, never an error."""
+    rng = np.random.default_rng(5)
+    oracle = _instance(rng, views=12, points=80, density=0.2)
+    covered = np.zeros_like(oracle.observable)
+    cover = solve_cover(oracle, covered, time_limit=1e-9)
+    optimum = _brute_force(oracle, covered)[0]
+    assert _covers(oracle, covered, cover.views)
+    assert 1 <= cover.bound <= optimum <= cover.size <= cover.greedy
+
+
+def test_nothing_left_is_the_empty_cover():
+    oracle = ViewOracle(np.eye(3, dtype=bool))
+    assert solve_cover(oracle, oracle.observable.copy(), 10) == Cover((), 0, 0)
