@@ -1,11 +1,19 @@
 """Set-cover labels: agreement with brute force, the reuse rules, canonical sets, time limits."""
 
+import hashlib
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
+from nbvdata.config import SimConfig, load_config
+from nbvdata.episode import scene_rng
+from nbvdata.generate import builtin_sources, generate
 from nbvdata.oracle import ViewOracle, pack_bits, popcount
+from nbvdata.scene import Scene
+from nbvdata.shards import COVER, Shard
 from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
@@ -112,3 +120,69 @@ def test_a_state_that_hits_the_time_limit_keeps_a_cover_and_a_true_bound(monkeyp
 def test_nothing_left_is_the_empty_cover():
     oracle = ViewOracle(np.eye(3, dtype=bool))
     assert solve_cover(oracle, oracle.observable.copy(), 10) == Cover((), 0, 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Labels in generated shards
+
+SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
+
+
+def _digests(folder: Path) -> dict[str, str]:
+    return {path.name: hashlib.sha256(path.read_bytes()).hexdigest() for path in sorted(folder.glob("*.h5"))}
+
+
+@pytest.fixture(scope="module")
+def cover_shards(tmp_path_factory):
+    """Three built-in shapes with set-cover labels, by one worker and by two."""
+    sources = builtin_sources()[:3]
+    one, two = tmp_path_factory.mktemp("one"), tmp_path_factory.mktemp("two")
+    for out, workers in ((one, 1), (two, 2)):
+        config = load_config(SimConfig, SMOKE, ["oracle.cover=true", f"generate.workers={workers}",
+                                                "generate.runs_per_shard=2"])
+        report = generate(sources, out, config)
+        assert not report.failures and report.samples > 0
+    return one, two, config
+
+
+def test_one_and_two_workers_store_the_same_covers(cover_shards):
+    one, two, _ = cover_shards
+    assert len(_digests(one)) == 6 and _digests(one) == _digests(two)
+
+
+def test_every_stored_cover_covers_what_its_state_left(cover_shards):
+    """Checked against the mesh's bit matrix: the state's scans (the run's last views so far)
+    and the cover together see every observable point; bound <= size <= greedy."""
+    one, _, config = cover_shards
+    scenes = {}
+    for path in sorted(one.glob("*.h5")):
+        with Shard(path) as shard:
+            assert COVER <= set(shard.file) and "cover: true" in shard.file.attrs["config"]
+            mesh_id = shard["mesh_id"][0].decode()
+            if mesh_id not in scenes:
+                source = next(s for s in builtin_sources() if s.mesh_id == mesh_id)
+                scenes[mesh_id] = Scene.build(source.load(config.mesh), config, scene_rng(0, mesh_id))
+            oracle = scenes[mesh_id].oracle
+            cover, size, bound, greedy = (shard[name] for name in ("cover", "cover_size", "cover_bound", "cover_greedy"))
+            run, step, last = shard["run"], shard["step"], shard["last_view"]
+            for i in range(len(shard)):
+                scanned = last[(run == run[i]) & (step <= step[i])]
+                assert len(scanned) == step[i]
+                covered = np.bitwise_or.reduce(oracle.visible[scanned], axis=0)
+                assert _covers(oracle, covered, np.flatnonzero(cover[i]))
+                assert cover[i].sum() == size[i] and bound[i] <= size[i] <= greedy[i]
+                assert bound[i] == size[i]  # the smoke scene solves well within the limit
+            assert (np.diff(size)[np.diff(run) == 0] >= -1).all()  # one scan removes at most one view
+
+
+def test_cover_false_writes_todays_bytes_and_datasets(tmp_path):
+    sources = builtin_sources()[:2]
+    plain, off = tmp_path / "plain", tmp_path / "off"
+    generate(sources, plain, load_config(SimConfig, SMOKE, ["generate.workers=1"]))
+    generate(sources, off, load_config(SimConfig, SMOKE, ["generate.workers=1", "oracle.cover=false",
+                                                          "oracle.cover_time_limit=10"]))
+    assert _digests(plain) == _digests(off) and len(_digests(plain)) == 2
+    assert list(yaml.safe_load((plain / "config.yaml").read_text())["oracle"]) == ["min_overlap"]
+    for path in plain.glob("*.h5"):
+        with Shard(path) as shard:
+            assert not COVER & set(shard.file) and list(shard.info.config["oracle"]) == ["min_overlap"]
