@@ -2,18 +2,21 @@
 
 import hashlib
 import itertools
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.episode import scene_rng
 from nbvdata.generate import builtin_sources, generate
 from nbvdata.oracle import ViewOracle, pack_bits, popcount
 from nbvdata.scene import Scene
 from nbvdata.shards import COVER, Shard
+from nbvdata.views import view_sphere
 from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
@@ -186,3 +189,79 @@ def test_cover_false_writes_todays_bytes_and_datasets(tmp_path):
     for path in plain.glob("*.h5"):
         with Shard(path) as shard:
             assert not COVER & set(shard.file) and list(shard.info.config["oracle"]) == ["min_overlap"]
+
+
+# ---------------------------------------------------------------------------------------------
+# SCVP's layout and export
+
+
+def test_scvp_layout_has_their_directions_at_our_radius():
+    anchor = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "scvp_view_space_32.txt"
+    config = load_config(SimConfig, None, ["views.layout=scvp-32", "views.count=32", "views.radius=0.3"])
+    positions = view_sphere(config.views).positions
+    assert positions.shape == (32, 3) and np.allclose(np.linalg.norm(positions, axis=1), 0.3, atol=1e-12)
+    if anchor.exists():  # the shipped table is their file, row for row
+        theirs = np.loadtxt(anchor, skiprows=1)
+        assert int(anchor.read_text().split()[0]) == 32
+        assert np.allclose(positions, theirs / np.linalg.norm(theirs, axis=1, keepdims=True) * 0.3, atol=1e-12)
+
+
+def _voxel_dataset(path: Path) -> tuple[list[str], list[np.ndarray], list[np.ndarray]]:
+    """SCVP's ``VOXELDataset`` reading (sc-net/dataset.py): every folder of exactly two files,
+    grid = last column of genfromtxt reshaped (1, 32, 32, 32), label = multi-hot of view_ids
+    over 64 outputs. (Their ``[:, [-1]]`` needs a 2-D array: genfromtxt's ndmin=2 gives it for
+    one column, as their generator writes and their eval script reads.)"""
+    roots, grids, labels = [], [], []
+    for root, _, files in sorted(os.walk(path)):
+        if len(files) == 2:
+            grid = np.genfromtxt(os.path.join(root, "grid.txt"), ndmin=2)[:, [-1]]
+            ids = np.genfromtxt(os.path.join(root, "view_ids.txt"), dtype=np.int32, ndmin=1).tolist()
+            label = np.zeros(64)
+            label[ids] = 1
+            roots.append(root)
+            grids.append(np.reshape(grid, (1, 32, 32, 32)))
+            labels.append(label)
+    return roots, grids, labels
+
+
+def test_scvp_export_reads_back_as_their_loader_reads_it(tmp_path):
+    shards = tmp_path / "shards"
+    config = load_config(SimConfig, SMOKE, ["oracle.cover=true", "views.layout=scvp-32", "views.count=32",
+                                            "generate.workers=1", "episode.runs_per_mesh=2"])
+    generate(builtin_sources()[:1], shards, config)
+    out = tmp_path / "scvp"
+    assert main(["export", str(shards), "--format", "scvp", "--out", str(out)]) == 0
+    (path,) = sorted(shards.glob("*.h5"))
+    with Shard(path) as shard:
+        grids, covers, positions = shard.grids(), shard["cover"], shard["view_positions"]
+    roots, read_grids, labels = _voxel_dataset(out)
+    assert len(roots) == len(grids) > 0
+    for root, grid, label in zip(roots, read_grids, labels):
+        index = int(Path(root).name)
+        assert Path(root).parent.name == path.stem
+        assert np.array_equal(grid[0].astype(np.float32), grids[index])  # [x, y, z], exact
+        assert np.array_equal(label[:32].astype(bool), covers[index]) and not label[32:].any()
+    space = (out / "view_space.txt").read_text().split("\n")
+    assert space[0] == "32" and np.array_equal(np.loadtxt(space[1:33]), positions)
+    assert np.genfromtxt(Path(roots[0]) / "grid.txt").reshape(1, 1, 32, 32, 32).shape  # their eval's reading
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ([], "no set-cover labels; generate with --set oracle.cover=true"),
+    (["oracle.cover=true"], "SCVP's format has their 32: generate with --set views.layout=scvp-32"),
+])
+def test_scvp_export_refuses_shards_it_cannot_hold_in_one_line(tmp_path, capsys, overrides, message):
+    config = load_config(SimConfig, SMOKE, [*overrides, "generate.workers=1", "episode.runs_per_mesh=1"])
+    generate(builtin_sources()[:1], tmp_path / "shards", config)
+    assert main(["export", str(tmp_path / "shards"), "--format", "scvp", "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert message in error and len(error.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def test_bad_cover_settings_are_one_line_errors(capsys):
+    for setting, message in (("oracle.cover_time_limit=0", "oracle.cover_time_limit=0.0: must be > 0 seconds"),
+                             ("views.layout=scvp-33", "views.layout='scvp-33': must be one of"),
+                             ("views.layout=scvp-32", "views.layout=scvp-32 has 32 views, set views.count=32")):
+        assert main(["generate", "--out", "/nonexistent/never", "--set", setting]) == 2
+        error = capsys.readouterr().err
+        assert message in error and len(error.strip().splitlines()) == 1
