@@ -326,8 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--checkpoint", type=Path, help="regression checkpoint (runs/NAME/best.pt; default: the "
                           "released one)")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class)")
-    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
-                          help="comma-separated, of scores,regression,classification,infogain,oracle,random "
+    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,setcover,random",
+                          help="comma-separated, of scores,regression,classification,infogain,oracle,setcover,random "
                           "(default all)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "

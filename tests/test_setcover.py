@@ -17,6 +17,8 @@ from nbvdata.oracle import ViewOracle, pack_bits, popcount
 from nbvdata.scene import Scene
 from nbvdata.shards import COVER, Shard
 from nbvdata.views import view_sphere
+from nbvtrain.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
+from nbvtrain.planners import build_planners
 from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
@@ -265,3 +267,45 @@ def test_bad_cover_settings_are_one_line_errors(capsys):
         assert main(["generate", "--out", "/nonexistent/never", "--set", setting]) == 2
         error = capsys.readouterr().err
         assert message in error and len(error.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# The evaluation's scans to X %, floors and set-cover planner
+
+
+def _eval_row(planner: str, start: int, scan: int, observable: float) -> dict:
+    return {"mesh": "cube", "planner": planner, "start": start, "start_view": 0, "scan": scan, "coverage": observable,
+            "observable_coverage": observable, "seconds": 0.0, "x": 0.0, "y": 0.0, "z": 0.4, "overlap": None,
+            "valid_views": None}
+
+
+def test_scans_to_each_share_on_hand_made_runs():
+    """Start 0 covers 50, 90, 96, 99.5 % after scans 1-4: 90 % at scan 2, 95 % at 3, 99 % at 4;
+    start 1 reaches 92 % and no more: 95 and 99 % are not reached."""
+    rows = [_eval_row("p", 0, scan, value) for scan, value in enumerate((0.5, 0.9, 0.96, 0.995), start=1)]
+    rows += [_eval_row("p", 1, scan, value) for scan, value in enumerate((0.6, 0.92, 0.92, 0.92), start=1)]
+    assert scans_to(rows) == {("cube", "p"): [[2, 3, 4], [2, None, None]]}
+    floors = [{"mesh": "cube", "start": 0, "start_view": 0, "cover_size": 3, "cover_bound": 3, "cover_greedy": 4},
+              {"mesh": "cube", "start": 1, "start_view": 5, "cover_size": 4, "cover_bound": 3, "cover_greedy": 5}]
+    (line,) = [line for line in scans_table(rows, floors, ["p"]) if line.startswith("| cube |")]
+    assert line == "| cube | 2.0 / n.r. / n.r. | >= 4.0 (best 4.5) | 5.5 |"
+
+
+def test_setcover_planner_reaches_everything_in_exactly_the_floors_scans(tmp_path):
+    """Noise-free, the planned views cover all the observable surface: the set-cover planner
+    reaches 100 % at scan 1 + the floor (no planner can earlier), the greedy oracle no earlier."""
+    config = load_config(SimConfig, SMOKE, ["views.count=24"])
+    source = builtin_sources()[0]
+    planners, _ = build_planners(["oracle", "setcover"], config, view_sphere(config.views), {})
+    report = evaluate([source], planners, config, scans=26, starts=1)
+    (floor_0, floor_1) = report.floors
+    reached = scans_to(report.rows, (1.0,))
+    for start, floor in enumerate((floor_0, floor_1)):
+        assert floor["cover_bound"] == floor["cover_size"] <= floor["cover_greedy"]
+        assert reached[(source.stem, "setcover")][start] == [1 + floor["cover_size"]]
+        oracle = reached[(source.stem, "oracle")][start][0]
+        assert oracle is None or oracle >= 1 + floor["cover_size"]
+    write_outputs(report, tmp_path, ["oracle", "setcover"], [], {})
+    summary = (tmp_path / "summary.md").read_text()
+    assert "| floor (100 %) | greedy cover (100 %) |" in summary and "setcover" in summary
+    assert (tmp_path / "floors.csv").read_text().splitlines()[0] == ",".join(FLOOR_COLUMNS)
