@@ -105,7 +105,7 @@ def _minimal(signatures, order):
 def _minimal_rows(oracle: ViewOracle, remaining: np.ndarray) -> np.ndarray:
     """(n, V) bool: the distinct minimal covering sets of the points in ``remaining`` ((W,) packed),
     one row each, in a fixed order (sorted by their packed bits)."""
-    views = len(oracle)
+    views = len(oracle.visible)
     seen_by = unpack_bits(oracle.visible, oracle.points)[:, unpack_bits(remaining, oracle.points)]  # (V, R)
     signatures = np.unique(pack_bits(seen_by.T), axis=0)  # (U, ceil(V / 64)) distinct covering sets
     sizes = np.bitwise_count(signatures).sum(axis=1, dtype=np.int64)
