@@ -177,6 +177,11 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
              f"search over the views that overlap at least {100 * oracle['min_overlap']:g} % of what is already "
              f"covered; global seed {episode['seed']}.",
              *_moves(episode, oracle, policies),
+             *([f"- Set-cover labels (`oracle.cover`, docs/setcover.md): every state also holds the fewest candidate "
+                f"views whose scans cover all the observable surface it has not covered (`cover`, SCVP's label), solved "
+                f"by HiGHS within {oracle.get('cover_time_limit', 10.0):g} s of wall time per state; `cover_bound` == "
+                "`cover_size` marks the labels proved optimal, the only ones the same on every machine."]
+               if oracle.get("cover") else []),
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
     command = _reproduce(content, policies)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "

@@ -76,8 +76,8 @@ def greedy_cover(oracle: ViewOracle, covered: np.ndarray) -> list[int]:
 
 @numba.njit(cache=True)
 def _minimal(signatures, order):
-    """keep[i]: no other row of ``signatures`` ((U, W) uint64, distinct) is a subset of row i.
-    ``order`` sorts the rows by size, so a row's subsets come before it."""
+    """keep[i]: no row kept before row i (in ``order``, which sorts the (U, W) uint64 rows by size,
+    so a row's subsets come before it) is a subset of it: the minimal rows, one of each set."""
     count, words = signatures.shape
     keep = np.zeros(count, dtype=np.bool_)
     kept = np.empty(count, dtype=np.int64)
@@ -104,23 +104,36 @@ def _minimal(signatures, order):
 
 def _minimal_rows(oracle: ViewOracle, remaining: np.ndarray) -> np.ndarray:
     """(n, V) bool: the distinct minimal covering sets of the points in ``remaining`` ((W,) packed),
-    one row each, in a fixed order (sorted by their packed bits)."""
-    views = len(oracle.visible)
-    seen_by = unpack_bits(oracle.visible, oracle.points)[:, unpack_bits(remaining, oracle.points)]  # (V, R)
-    signatures = np.unique(pack_bits(seen_by.T), axis=0)  # (U, ceil(V / 64)) distinct covering sets
+    one row each, in the order of their first point (a set equal to an earlier one is dropped as
+    its superset)."""
+    signatures = oracle.point_views[unpack_bits(remaining, oracle.points)]  # (R, ceil(V / 64))
     sizes = np.bitwise_count(signatures).sum(axis=1, dtype=np.int64)
     keep = _minimal(signatures, np.argsort(sizes, kind="stable"))
-    return unpack_bits(signatures[keep], views)
+    return unpack_bits(signatures[keep], len(oracle.visible))
+
+
+@numba.njit(cache=True)
+def _dominated_by_lower(columns):
+    """dominated[j]: some view i < j covers every row view j covers (``columns``: (V, W) uint64,
+    each view's rows packed)."""
+    views, words = columns.shape
+    dominated = np.zeros(views, dtype=np.bool_)
+    for j in range(views):
+        for i in range(j):
+            subset = True
+            for w in range(words):
+                if columns[j, w] & ~columns[i, w]:
+                    subset = False
+                    break
+            if subset:
+                dominated[j] = True
+                break
+    return dominated
 
 
 def _candidates(rows: np.ndarray) -> np.ndarray:
     """(V,) bool: views that cover a row and whose rows no lower-indexed view's rows contain."""
-    columns = rows.T.astype(np.float32)  # (V, n); counts stay exact in float32
-    shared = columns @ columns.T  # shared[j, i] = rows both j and i cover
-    sizes = columns.sum(axis=1)
-    inside = shared == sizes[:, None]  # inside[j, i]: j's rows are a subset of i's
-    lower = np.tri(len(columns), k=-1, dtype=bool)  # i < j
-    return (sizes > 0) & ~(inside & lower).any(axis=1)
+    return rows.any(axis=0) & ~_dominated_by_lower(pack_bits(rows.T))
 
 
 def _covers(rows: np.ndarray, views) -> bool:
