@@ -25,7 +25,7 @@ from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.claims import write_atomic  # noqa: E402
 from nbvdata.config import SimConfig  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvdata.shards import GENERATED, Shard  # noqa: E402
+from nbvdata.shards import COVER, GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
 from nbvdata.text import plural  # noqa: E402
 
@@ -105,6 +105,8 @@ def card_text(content: dict, summary: Summary, present: set[str], manifest_path:
               "(the description in `nbvdata/shards.py`):", "",
               "| dataset | shape | dtype | content |", "|---|---|---|---|"]
     for dataset, shape, dtype, meaning in schema_rows():
+        if dataset in COVER and dataset not in present:
+            continue  # set-cover labels: listed only in versions that hold them (oracle.cover)
         absent = "" if dataset in present else " *(absent in this version)*"
         lines.append(f"| `{dataset}` | {shape} | {dtype} | {meaning.replace('|', '/')}{absent} |")
     lines += ["", "## Statistics", "", *_coverage(summary), "", "As `nbvdata inspect` prints them:", "",

@@ -309,3 +309,16 @@ def test_setcover_planner_reaches_everything_in_exactly_the_floors_scans(tmp_pat
     summary = (tmp_path / "summary.md").read_text()
     assert "| floor (100 %) | greedy cover (100 %) |" in summary and "setcover" in summary
     assert (tmp_path / "floors.csv").read_text().splitlines()[0] == ",".join(FLOOR_COLUMNS)
+
+
+def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, capsys):
+    from nbvdata.manifest import publish
+
+    one, _, _ = cover_shards
+    assert main(["inspect", str(one)]) == 0
+    printed = capsys.readouterr().out
+    assert "set-cover labels by step" in printed and "\n   1 " in printed and "100.0%" in printed
+    card = publish(one, "covered", "1.0.0", tmp_path / "manifests").path.with_suffix(".md").read_text()
+    assert "- Set-cover labels (`oracle.cover`" in card and "set-cover labels by step" in card
+    for dataset in COVER:
+        assert f"| `{dataset}` | (N" in card
