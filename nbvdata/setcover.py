@@ -167,15 +167,19 @@ def _milp(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds
     return views, (len(views) if finished else bound), finished
 
 
-def _lp_bound(rows: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray]:
-    """The LP relaxation's optimum of covering ``rows`` by ``columns``, and its dual (n,) row prices."""
+def _lp_bound(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[float, np.ndarray] | None:
+    """The LP relaxation's optimum of covering ``rows`` by ``columns`` and its dual (n,) row prices,
+    or None when it is not solved within ``seconds``."""
     from scipy.optimize import linprog
     from scipy.sparse import csr_matrix
 
     result = linprog(np.ones(len(columns)), A_ub=-csr_matrix(rows[:, columns].astype(np.float64)),
-                     b_ub=-np.ones(len(rows)), bounds=(0, None), method="highs")
-    if result.status != 0:
+                     b_ub=-np.ones(len(rows)), bounds=(0, None), method="highs",
+                     options={"time_limit": max(seconds, 1e-3)})
+    if result.status == 2:  # infeasible: some row no column covers
         return math.inf, np.zeros(len(rows))
+    if result.status != 0:
+        return None
     return float(result.fun), np.maximum(-result.ineqlin.marginals, 0.0)
 
 
@@ -221,7 +225,10 @@ def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, co
                 if prices[rest].sum() / max(load, 1.0) > budget + FEASIBILITY_TOLERANCE:
                     continue
                 columns = np.flatnonzero(later)
-                relaxed, dual = _lp_bound(rows[rest], columns)
+                solved = _lp_bound(rows[rest], columns, deadline - time.perf_counter())
+                if solved is None:
+                    return None
+                relaxed, dual = solved
                 prices = np.zeros(count)
                 prices[rest] = dual
                 if relaxed > budget + FEASIBILITY_TOLERANCE:
