@@ -141,6 +141,41 @@ def _covers(rows: np.ndarray, views) -> bool:
 
 
 def _milp(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds: float):
+    """``_milp_direct`` on a growing subset of the rows (constraint generation): a subset's program
+    is a relaxation, so its optimum is a lower bound and its infeasibility is the whole program's;
+    a subset's optimal cover that covers every row is optimal for all of them. Dense instances
+    (thousands of rows, each seen by hundreds of views) thus solve on a few hundred rows."""
+    deadline = time.perf_counter() + seconds
+    sizes = rows.sum(axis=1)
+    active = _seed_rows(rows, sizes)
+    while True:
+        views, bound, finished = _milp_direct(rows[active], columns, lower, upper, deadline - time.perf_counter())
+        if views is None or not finished:
+            covers = views is not None and _covers(rows, views)
+            return (views if covers else None), bound, finished
+        missing = np.flatnonzero(~rows[:, views].any(axis=1))
+        if not len(missing):
+            return views, bound, True
+        lower = max(lower, bound)  # the subset's optimum bounds the whole program's
+        active = np.union1d(active, missing[np.argsort(sizes[missing], kind="stable")[:ROWS_ADDED]])
+
+
+ROWS_SEED, ROWS_ADDED = 256, 128  # rows of the first subset, rows added per round
+
+
+def _seed_rows(rows: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """The first subset of rows: the ``ROWS_SEED`` rows seen by the fewest views (the binding ones),
+    and a greedy packing (rows no view sees two of, fewest views first): sorted indices."""
+    order = np.argsort(sizes, kind="stable")
+    packed, used = [], np.zeros(rows.shape[1], dtype=bool)
+    for row in order:
+        if not (rows[row] & used).any():
+            packed.append(row)
+            used |= rows[row]
+    return np.union1d(order[:ROWS_SEED], np.array(packed, dtype=np.int64))
+
+
+def _milp_direct(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds: float):
     """Smallest cover of ``rows`` by the views ``columns`` with lower <= size <= upper.
 
     Returns (views or None, bound, finished): the cover found (None: none), the proven lower bound
@@ -168,6 +203,19 @@ def _milp(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds
 
 
 def _lp_bound(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[float, np.ndarray] | None:
+    """A lower bound on covering ``rows`` by ``columns`` and (n,) row prices that prove it (a
+    feasible dual: no column's rows cost more than 1): the LP relaxation of the ``_seed_rows``
+    subset, a relaxation of the whole; None when it is not solved within ``seconds``."""
+    subset = _seed_rows(rows, rows.sum(axis=1))
+    solved = _lp_direct(rows[subset], columns, seconds)
+    if solved is None:
+        return None
+    prices = np.zeros(len(rows))
+    prices[subset] = solved[1]
+    return solved[0], prices
+
+
+def _lp_direct(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[float, np.ndarray] | None:
     """The LP relaxation's optimum of covering ``rows`` by ``columns`` and its dual (n,) row prices,
     or None when it is not solved within ``seconds``."""
     from scipy.optimize import linprog

@@ -19,6 +19,7 @@ from nbvdata.shards import COVER, Shard
 from nbvdata.views import view_sphere
 from nbvtrain.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
 from nbvtrain.planners import build_planners
+from nbvdata import setcover
 from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
@@ -62,6 +63,20 @@ def test_optimum_and_canonical_set_equal_brute_force(seed):
     # from scratch: the greedy cover when it is optimal, else the lexicographically smallest optimal set
     greedy = greedy_cover(oracle, covered)
     assert cover.views == (tuple(sorted(greedy)) if len(greedy) == optimum else smallest)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_constraint_generation_from_a_few_rows_gives_the_same_labels(seed, monkeypatch):
+    """Solved from 2 rows, adding 1 uncovered row a round (instead of hundreds), every program is
+    a relaxation until its cover covers all rows: the labels stay those of the whole program."""
+    rng = np.random.default_rng(seed)
+    oracle = _instance(rng, views=int(rng.integers(4, 15)), points=int(rng.integers(10, 80)),
+                       density=float(rng.uniform(0.08, 0.4)))
+    covered = np.zeros_like(oracle.observable)
+    whole = solve_cover(oracle, covered, time_limit=30)
+    monkeypatch.setattr(setcover, "ROWS_SEED", 2)
+    monkeypatch.setattr(setcover, "ROWS_ADDED", 1)
+    assert solve_cover(oracle, covered, time_limit=30) == whole
 
 
 @pytest.mark.parametrize("seed", range(20))
