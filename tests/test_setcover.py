@@ -3,6 +3,8 @@
 import hashlib
 import itertools
 import os
+import time
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +20,9 @@ from nbvdata.scene import Scene
 from nbvdata.shards import COVER, Shard
 from nbvdata.views import view_sphere
 from nbvtrain.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
-from nbvtrain.planners import build_planners
+from nbvtrain.planners import SetCoverPlanner, build_planners
 from nbvdata import setcover
-from nbvdata.setcover import Cover, _candidates, _minimal_rows, greedy_cover, next_cover, solve_cover
+from nbvdata.setcover import Cover, _candidates, _lexicographic_cover, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
 def _instance(rng, views: int, points: int, density: float) -> ViewOracle:
@@ -337,3 +339,58 @@ def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, ca
     assert "- Set-cover labels (`oracle.cover`" in card and "set-cover labels by step" in card
     for dataset in COVER:
         assert f"| `{dataset}` | (N" in card
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_canonical_search_finds_the_smallest_optimal_set_from_any_optimal_one(seed):
+    """Handed the lexicographically largest optimal cover (what another solver path might return),
+    the search returns the smallest, as brute force finds it."""
+    rng = np.random.default_rng(200 + seed)
+    oracle = _instance(rng, views=int(rng.integers(5, 13)), points=int(rng.integers(10, 60)), density=0.25)
+    covered = np.zeros_like(oracle.observable)
+    optimum, smallest = _brute_force(oracle, covered)
+    optimal = [views for views in itertools.combinations(range(len(oracle)), optimum)
+               if _covers(oracle, covered, views)]
+    rows = _minimal_rows(oracle, oracle.observable & ~covered)
+    found = _lexicographic_cover(rows, _candidates(rows), optimum, list(optimal[-1]), time.perf_counter() + 30)
+    assert tuple(found) == smallest == optimal[0]
+
+
+def test_the_size_may_drop_by_one_after_a_view_outside_the_cover():
+    """Views A = {p0, p1}, B = {p2, p3}, C = {p0, p2}, D = {p1, p3}: the cover of all is {A, B};
+    after scanning C (not in it) D alone covers the rest, so the bound opt - 1 must be reachable."""
+    oracle = ViewOracle(np.array([[1, 1, 0, 0], [0, 0, 1, 1], [1, 0, 1, 0], [0, 1, 0, 1]], dtype=bool))
+    first = solve_cover(oracle, np.zeros_like(oracle.observable), 10)
+    assert first.views == (0, 1) and first.proved
+    label = next_cover(oracle, oracle.visible[2].copy(), first, 2, 10)
+    assert label.views == (3,) and label.proved
+
+
+def test_setcover_planner_scans_the_plan_most_new_surface_first():
+    """Plan {0, 1, 2} of a 3-view instance where view 2 sees most: scanned 2, then the others."""
+    visible = np.zeros((3, 10), dtype=bool)
+    visible[0, :2] = visible[1, 2:4] = visible[2, 4:] = True
+    oracle = ViewOracle(visible)
+    planner = SetCoverPlanner(views=[0, 1, 2], time_limit=10)
+    planner.start(0)
+    truth = SimpleNamespace(scene=SimpleNamespace(oracle=oracle), covered=np.zeros_like(oracle.observable))
+    order = []
+    for _ in range(3):
+        view = planner.next_pose(None, truth)
+        order.append(view)
+        truth.covered = truth.covered | oracle.visible[view]
+    assert order == [2, 0, 1]  # 6 new points, then 2 and 2 (ties to the lowest index)
+
+
+@pytest.mark.parametrize("seed", [2, 249, 305])
+def test_a_view_outside_the_cover_can_still_lower_the_optimum(seed):
+    """Instances (found by search) where the view scanned is in no previous cover, yet the optimum
+    drops by one and neither the previous cover nor the greedy one shows it: the solver must."""
+    rng = np.random.default_rng(seed)
+    oracle = _instance(rng, views=int(rng.integers(6, 12)), points=40, density=0.2)
+    previous = solve_cover(oracle, np.zeros_like(oracle.observable), 30)
+    view = int(rng.integers(len(oracle)))
+    covered = oracle.visible[view].copy()
+    label = next_cover(oracle, covered, previous, view, 30)
+    assert view not in previous.views and label.greedy == previous.size
+    assert label.size == previous.size - 1 == _brute_force(oracle, covered)[0] and label.proved
