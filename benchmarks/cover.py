@@ -6,7 +6,7 @@ alike), one worker each, into temporary folders: the default settings, then the 
 the totals, the share of labels proved optimal, and the seconds per label by step (the mesh's own
 cover, solved once per mesh, apart).
 
-    python benchmarks/cover.py [--meshes ../shared/meshes/train] [--limit N] [--set key=value ...]
+    python benchmarks/cover.py [--meshes ../shared/meshes/train] [--skip N] [--limit N] [--set key=value ...]
 
 Targets (issue 26): the whole train folder with covers in <= 5x the default's time, and >= 99 %
 of the labels proved optimal within ``oracle.cover_time_limit`` (10 s).
@@ -33,12 +33,13 @@ TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "train"
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--meshes", type=Path, default=TRAIN, help="folder of meshes (default the shared train/)")
-    parser.add_argument("--limit", type=int, help="only the first N meshes (sorted by path)")
+    parser.add_argument("--skip", type=int, default=0, help="leave out the first N meshes (sorted by path)")
+    parser.add_argument("--limit", type=int, help="then only the next N meshes")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="settings of both jobs, e.g. --set episode.runs_per_mesh=5")
     args = parser.parse_args()
     sources, failures = mesh_sources(args.meshes)
-    sources = sources[:args.limit] if args.limit else sources
+    sources = sources[args.skip:args.skip + args.limit if args.limit else None]
     plain = load_config(SimConfig, None, [*args.overrides, "generate.workers=1"])
     cover = load_config(SimConfig, None, [*args.overrides, "generate.workers=1", "oracle.cover=true"])
     print(f"{len(sources)} meshes from {args.meshes}, {plain.episode.runs_per_mesh} runs each, one worker; "
