@@ -3,6 +3,8 @@
 import hashlib
 import itertools
 import os
+import subprocess
+import sys
 import time
 from types import SimpleNamespace
 from pathlib import Path
@@ -394,3 +396,20 @@ def test_a_view_outside_the_cover_can_still_lower_the_optimum(seed):
     label = next_cover(oracle, covered, previous, view, 30)
     assert view not in previous.views and label.greedy == previous.size
     assert label.size == previous.size - 1 == _brute_force(oracle, covered)[0] and label.proved
+
+
+def test_cover_shards_are_byte_identical_with_an_old_cpus_arithmetic(tmp_path):
+    """As tests/test_determinism.py does for the default data: numpy's, OpenBLAS's and numba's
+    arithmetic of the oldest x86-64 CPU give the same labels (HiGHS's own path may differ; the
+    canonical set does not)."""
+    from test_determinism import OLD_CPU
+
+    def generate_in(out: Path, env: dict | None) -> None:
+        command = [sys.executable, "-m", "nbvdata", "generate", "--out", str(out), "--config", str(SMOKE),
+                   "--workers", "1", "--runs-per-mesh", "2", "--set", "oracle.cover=true", "--no-progress"]
+        result = subprocess.run(command, capture_output=True, text=True, env=env)
+        assert result.returncode == 0, result.stderr
+
+    generate_in(tmp_path / "here", None)
+    generate_in(tmp_path / "old", os.environ | OLD_CPU | {"NUMBA_CACHE_DIR": str(tmp_path / "jit")})
+    assert len(_digests(tmp_path / "here")) == 6 and _digests(tmp_path / "here") == _digests(tmp_path / "old")
