@@ -413,3 +413,27 @@ def test_cover_shards_are_byte_identical_with_an_old_cpus_arithmetic(tmp_path):
     generate_in(tmp_path / "here", None)
     generate_in(tmp_path / "old", os.environ | OLD_CPU | {"NUMBA_CACHE_DIR": str(tmp_path / "jit")})
     assert len(_digests(tmp_path / "here")) == 6 and _digests(tmp_path / "here") == _digests(tmp_path / "old")
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_another_solver_path_stores_the_same_set(seed, monkeypatch):
+    """Whatever optimal set the solver returns first (here: the lexicographically largest, as
+    another machine's HiGHS might), the stored label is the same."""
+    rng = np.random.default_rng(seed)
+    oracle = _instance(rng, views=int(rng.integers(4, 13)), points=int(rng.integers(10, 60)),
+                       density=float(rng.uniform(0.08, 0.4)))
+    covered = np.zeros_like(oracle.observable)
+    expected = solve_cover(oracle, covered, 30)
+    optimum = _brute_force(oracle, covered)[0]
+    largest = [views for views in itertools.combinations(range(len(oracle)), optimum)
+               if _covers(oracle, covered, views)][-1]
+    solve, calls = setcover._milp, []
+
+    def other_path(rows, columns, lower, upper, seconds):
+        calls.append(1)
+        if len(calls) == 1 and lower <= optimum <= upper:  # the first solve: another optimal set
+            return list(largest), optimum, True
+        return solve(rows, columns, lower, upper, seconds)
+
+    monkeypatch.setattr(setcover, "_milp", other_path)
+    assert solve_cover(oracle, covered, 30) == expected
