@@ -25,7 +25,7 @@ from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.claims import write_atomic  # noqa: E402
 from nbvdata.config import SimConfig, from_dict  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvdata.shards import GENERATED, Shard  # noqa: E402
+from nbvdata.shards import COVER, GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
 from nbvdata.text import plural  # noqa: E402
 
@@ -105,6 +105,8 @@ def card_text(content: dict, summary: Summary, present: set[str], manifest_path:
               "(the description in `nbvdata/shards.py`):", "",
               "| dataset | shape | dtype | content |", "|---|---|---|---|"]
     for dataset, shape, dtype, meaning in schema_rows():
+        if dataset in COVER and dataset not in present:
+            continue  # set-cover labels: listed only in versions that hold them (oracle.cover)
         absent = "" if dataset in present else " *(absent in this version)*"
         lines.append(f"| `{dataset}` | {shape} | {dtype} | {meaning.replace('|', '/')}{absent} |")
     lines += ["", "## Statistics", "", *_coverage(summary), "", "As `nbvdata inspect` prints them:", "",
@@ -177,6 +179,11 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
              f"search over the views that overlap at least {100 * oracle['min_overlap']:g} % of what is already "
              f"covered; global seed {episode['seed']}.",
              *_moves(episode, oracle, policies),
+             *([f"- Set-cover labels (`oracle.cover`, docs/setcover.md): every state also holds the fewest candidate "
+                f"views whose scans cover all the observable surface it has not covered (`cover`, SCVP's label), solved "
+                f"by HiGHS within {oracle.get('cover_time_limit', 10.0):g} s of wall time per state; `cover_bound` == "
+                "`cover_size` marks the labels proved optimal, the only ones the same on every machine."]
+               if oracle.get("cover") else []),
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
     command = _reproduce(content, policies)
     lines.append(f"- Reproduce the shards: `{command}`; `nbvdata verify` with `--root` then tells whether your "

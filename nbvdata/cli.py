@@ -144,6 +144,19 @@ def cmd_generate(args: argparse.Namespace) -> int:
           f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped)
           + (f"; {plural(others, 'shard')} {'was' if others == 1 else 'were'} left to another process"
              if others else ""))
+    if config.oracle.cover and any(result.cover_seconds for result in report.done):
+        from collections import defaultdict
+
+        from nbvdata.summary import format_covers, summarise
+
+        seconds = defaultdict(list)
+        for result in report.done:
+            for step, spent in result.cover_seconds:
+                seconds[step].append(spent)
+        mesh_seconds = sum(result.seconds.get("cover_mesh", 0.0) for result in report.done)
+        written = [args.out / result.unit.shard_name for result in report.done]
+        print("\n".join(format_covers(summarise(written).covers, seconds)[1:]))
+        print(f"(plus {mesh_seconds:.1f} s for the meshes' own covers, no view scanned)")
     if report.others_running:
         print(f"nbvdata generate: another process is still writing {plural(len(report.others_running), 'shard')} "
               f"into {args.out}; run the same command again when it has finished to check that every shard is there")
@@ -261,6 +274,16 @@ def cmd_verify(args: argparse.Namespace) -> int:
         return 1
     same = "with the same content" if args.content else "unchanged"
     print(f"ok: every shard is there, {same}, with the samples listed; no others ({result.seconds:.1f} s)")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Write shards in another project's file format (``--format scvp``: SCVP's training folders)."""
+    from nbvdata.export_scvp import export_scvp
+
+    report = export_scvp(shard_files(args.shards), args.out)
+    print(f"exported {plural(report.states, 'state')} of {plural(report.shards, 'shard')} to {args.out} "
+          f"({args.format}: one folder per state with grid.txt and view_ids.txt, and view_space.txt)")
     return 0
 
 
@@ -417,6 +440,14 @@ def build_parser() -> Parser:
                      help="accept a shard whose file bytes differ when every array and attribute equals the "
                      "published one (a regeneration written by another HDF5 library, say)")
     ver.set_defaults(func=cmd_verify)
+
+    export = sub.add_parser("export", help="write shards in another project's format (scvp: SCVP's folders of "
+                            "grid.txt and view_ids.txt)")
+    export.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
+    export.add_argument("--format", required=True, choices=["scvp"], help="scvp: needs shards generated with "
+                        "oracle.cover true and views.layout scvp-32 (docs/setcover.md)")
+    export.add_argument("--out", type=Path, required=True, help="output folder (new or empty)")
+    export.set_defaults(func=cmd_export)
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",

@@ -47,12 +47,16 @@ class ViewConfig:
     """Radius of the view sphere around the object centre, in metres (the authors' 0.4 m)."""
     count: int = 500
     """Number of candidate views."""
-    layout: Literal["hemisphere", "sphere"] = "hemisphere"
-    """"hemisphere": z >= 0 only (object on a table, as in the authors' data); "sphere": all round."""
+    layout: Literal["hemisphere", "sphere", "scvp-32"] = "hemisphere"
+    """"hemisphere": z >= 0 only (object on a table, as in the authors' data); "sphere": all round;
+    "scvp-32": SCVP's 32 views (``nbvdata.layout_scvp``), their directions at ``radius``; needs
+    ``count`` 32."""
 
     def __post_init__(self) -> None:
         _check(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
         _check(self.count >= 1, f"views.count={self.count}: must be >= 1")
+        _check(self.layout != "scvp-32" or self.count == 32,
+               f"views.count={self.count}: views.layout=scvp-32 has 32 views, set views.count=32")
 
 
 @dataclass(frozen=True)
@@ -144,9 +148,18 @@ class OracleConfig:
     min_overlap: float = 0.2
     """A candidate view is valid when at least this fraction of the surface it would observe is
     already covered (the authors' 20 % registration overlap)."""
+    cover: bool = False
+    """Also label every state with the fewest candidate views that cover all the observable surface
+    it has not covered yet (SCVP's set-cover label, ``nbvdata.setcover``): the shards then hold
+    ``cover``, ``cover_size``, ``cover_bound`` and ``cover_greedy``. False: the data of before."""
+    cover_time_limit: float = 10.0
+    """Seconds of wall time a state's set cover may take (SCVP's Gurobi limit, 10 s); a state that
+    hits it keeps the best set found and the proven lower bound (``cover_bound`` < ``cover_size``)."""
 
     def __post_init__(self) -> None:
         _check(0 <= self.min_overlap <= 1, f"oracle.min_overlap={self.min_overlap}: must be in [0, 1]")
+        _check(self.cover_time_limit > 0,
+               f"oracle.cover_time_limit={self.cover_time_limit}: must be > 0 seconds (10 is SCVP's limit)")
 
 
 @dataclass(frozen=True)
@@ -230,7 +243,8 @@ class SimConfig:
 # Settings added after datasets were published, whose default leaves the data as it was before
 # them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
 # recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
-NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0}
+NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0,
+                    ("oracle", "cover"): False, ("oracle", "cover_time_limit"): 10.0}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ reference points, 1 the start views, 2 a run's range noise, 4 a run's moves and 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -32,6 +33,7 @@ import numpy as np
 from nbvdata.grid import OccupancyGrid, ScanUpdate
 from nbvdata.oracle import pack_bits, popcount
 from nbvdata.scene import Scene
+from nbvdata.setcover import Cover, next_cover
 from nbvdata.views import Pose
 
 if TYPE_CHECKING:
@@ -111,9 +113,23 @@ class RunRecord:
     move: list[int] = field(default_factory=list)
     next_view: list[int] = field(default_factory=list)
     next_pose: list[np.ndarray] = field(default_factory=list)
+    cover: list[np.ndarray] = field(default_factory=list)
+    cover_size: list[int] = field(default_factory=list)
+    cover_bound: list[int] = field(default_factory=list)
+    cover_greedy: list[int] = field(default_factory=list)
+    cover_seconds: list[float] = field(default_factory=list)  # not stored: timing, for reports
 
     def __len__(self) -> int:
         return len(self.nbv_index)
+
+    def add_cover(self, cover: Cover, views: int, seconds: float) -> None:
+        chosen = np.zeros(views, dtype=bool)
+        chosen[list(cover.views)] = True
+        self.cover.append(chosen)
+        self.cover_size.append(cover.size)
+        self.cover_bound.append(cover.bound)
+        self.cover_greedy.append(cover.greedy)
+        self.cover_seconds.append(seconds)
 
 
 @dataclass
@@ -182,7 +198,8 @@ def run_seed(seed: int, mesh_id: str, run: int) -> int:
 def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
                        cache: ViewCache | None, mover: Mover | None = None) -> RunRecord:
     """One labelled run from ``start_view``; ``rng`` draws the range noise, if any; ``mover``
-    chooses the moves (default: always the NBV)."""
+    chooses the moves (default: always the NBV). With ``oracle.cover`` every state also gets its
+    set-cover label, each from the previous one (the first from the mesh's, ``Scene.empty_cover``)."""
     config = scene.config
     oracle = scene.oracle
     mover = mover if mover is not None else Mover()
@@ -190,11 +207,17 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
     state = Reconstruction(scene, cache, rng)
     state.scan(start_view)
     last, poses = start_view, [scene.views[start_view]]
+    cover = scene.empty_cover() if config.oracle.cover else None
+    exact = start_view if cache is not None else None  # the candidate whose exact points the scan added
     while True:
         scores = oracle.score(state.covered)
         nbv = scores.best(config.oracle.min_overlap, config.episode.min_gain)
         if nbv is None:
             break
+        if cover is not None:
+            started = time.perf_counter()
+            cover = next_cover(oracle, state.covered, cover, exact, config.oracle.cover_time_limit)
+            record.add_cover(cover, len(scene.views), time.perf_counter() - started)
         record.log_odds.append(state.grid.log_odds.copy())
         record.nbv_index.append(nbv)
         record.gains.append(scores.gains.astype(np.float32))
@@ -217,10 +240,10 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
             move = nbv
         if isinstance(move, Pose):
             state.scan_pose(move)  # no candidate view: cast live
-            last, pose = -1, move
+            last, pose, exact = -1, move, None
         else:
             state.scan(move)
-            last, pose = move, scene.views[move]
+            last, pose, exact = move, scene.views[move], move if cache is not None else None
         poses.append(pose)
         record.move.append(rule)
         record.next_view.append(last)

@@ -44,7 +44,7 @@ from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_f
 from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import GENERATED, MOVES, GridPalette, Shard, ShardError, write_shard
+from nbvdata.shards import COVER, GENERATED, MOVES, GridPalette, Shard, ShardError, write_shard
 
 CONFIG_FILE = "config.yaml"
 POLICY_FILE = "policy.yaml"
@@ -132,6 +132,7 @@ class UnitResult:
     error: str | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     elsewhere: str | None = None
+    cover_seconds: list[tuple[int, float]] = field(default_factory=list)  # (step, seconds) per label
 
 
 class Timer:
@@ -186,6 +187,10 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         recorded = ("nbv_index", "gains", "overlaps", "coverage", "last_view")
         if episode.explore > 0 or planner is not None:  # off the oracle's path: record the moves
             recorded += tuple(sorted(MOVES))
+        if config.oracle.cover:
+            recorded += tuple(sorted(COVER))
+            with timer("cover_mesh"):  # the mesh's own cover, which bounds every run's first state
+                scene.empty_cover()
         columns: dict[str, list] = defaultdict(list)
         palette = GridPalette()
         for run in range(*unit.runs):
@@ -201,6 +206,7 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
             columns["run"].extend([run] * len(record))
             columns["step"].extend(range(1, len(record) + 1))
             columns["seed"].extend([rng_seed] * len(record))
+            result.cover_seconds += list(enumerate(record.cover_seconds, start=1))
             if progress is not None:
                 progress(1, len(record))
         with timer("write"):
@@ -299,7 +305,12 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
         "move": np.asarray(columns["move"], dtype=np.int8),
         "next_view": np.asarray(columns["next_view"], dtype=np.int32),
         "next_pose": np.asarray(columns["next_pose"], dtype=np.float64).reshape(count, 6),
-    } if "move" in columns else {})
+    } if "move" in columns else {}) | ({
+        "cover": np.asarray(columns["cover"], dtype=bool).reshape(count, views),
+        "cover_size": np.asarray(columns["cover_size"], dtype=np.int16),
+        "cover_bound": np.asarray(columns["cover_bound"], dtype=np.int16),
+        "cover_greedy": np.asarray(columns["cover_greedy"], dtype=np.int16),
+    } if "cover" in columns else {})
 
 
 # ---------------------------------------------------------------------------------------------

@@ -89,9 +89,18 @@ class ViewOracle:
         self.observable_count = popcount(self.observable)
         self._and = np.empty_like(self.visible)
         self._counts = np.empty(self.visible.shape, dtype=np.uint8)
+        self._point_views: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.visible)
+
+    @property
+    def point_views(self) -> np.ndarray:
+        """(P, ceil(V / 64)) uint64: the transposed bit matrix, bit v of row p set when view v
+        covers point p (each point's covering set, for ``nbvdata.setcover``); made on first use."""
+        if self._point_views is None:
+            self._point_views = pack_bits(unpack_bits(self.visible, self.points).T)
+        return self._point_views
 
     def score(self, covered: np.ndarray) -> Scores:
         """Score every view at the state whose covered points are ``covered`` ((W,) packed)."""

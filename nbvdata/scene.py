@@ -4,7 +4,7 @@ everything that simulates it."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from nbvdata.grid import OccupancyGrid
 from nbvdata.mesh import ObjectMesh
 from nbvdata.oracle import ViewOracle
 from nbvdata.sensor import MeshScanner, Scan
+from nbvdata.setcover import Cover, solve_cover
 from nbvdata.views import ViewSet, view_sphere
 
 
@@ -27,6 +28,7 @@ class Scene:
     scanner: MeshScanner
     coverage: SurfaceCoverage
     oracle: ViewOracle
+    _empty_cover: Cover | None = field(default=None, repr=False)
 
     @classmethod
     def build(cls, obj: ObjectMesh, config: SimConfig, rng: np.random.Generator, threads: int = 0) -> "Scene":
@@ -42,6 +44,14 @@ class Scene:
         visible = coverage.covered_by_views(scanner, views)
         coverage.observable = visible.any(axis=0)
         return cls(config, obj, views, scanner, coverage, ViewOracle(visible))
+
+    def empty_cover(self) -> Cover:
+        """The set cover of the whole observable surface (no view scanned), solved on the first
+        call: it bounds every run's first state (``nbvdata.setcover.next_cover``)."""
+        if self._empty_cover is None:
+            nothing = np.zeros_like(self.oracle.observable)
+            self._empty_cover = solve_cover(self.oracle, nothing, self.config.oracle.cover_time_limit)
+        return self._empty_cover
 
     def new_grid(self) -> OccupancyGrid:
         return OccupancyGrid(self.config.scene_grid)

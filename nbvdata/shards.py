@@ -32,6 +32,14 @@ Datasets::
                                          view); only in runs off the oracle's path
     next_pose      (N, 6) float64        the pose scanned next, as nbv_pose (NaN: none); only in runs
                                          off the oracle's path
+    cover          (N, V) bool           the fewest views whose scans cover all the observable reference
+                                         points the state has not covered (SCVP's set-cover label; the
+                                         best set found when not proved optimal); only with oracle.cover
+    cover_size     (N,) int16            views in cover; only with oracle.cover
+    cover_bound    (N,) int16            proven lower bound on the fewest views (== cover_size when proved
+                                         optimal); only with oracle.cover
+    cover_greedy   (N,) int16            views in the greedy set cover (most new points first); only with
+                                         oracle.cover
 
 Optional datasets (``OPTIONAL``): ``gains``, ``overlaps``, ``coverage``, ``mesh_id``,
 ``last_view``, ``seed`` and ``view_poses`` may be absent: a shard imported from a dataset that
@@ -48,6 +56,11 @@ There ``nbv_index`` is still the exact label of every state, but the next state 
 ``next_view``/``next_pose``; ``last_view`` is -1 after a pose that is no candidate view (that
 pose is the previous sample's ``next_pose``), and ``coverage[:, 1]`` is still what the NBV
 would have reached. New datasets that old readers ignore: the schema version stays 1.
+
+Set-cover labels (``COVER``, ``nbvdata.setcover``): a generated shard whose ``config`` has
+``oracle.cover`` true holds ``cover``, ``cover_size``, ``cover_bound`` and ``cover_greedy``;
+others hold none of them (byte for byte the shards of before). Views already scanned count as
+given and the overlap rule is no part of the cover, as in SCVP.
 
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
 determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
@@ -95,12 +108,17 @@ PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
     "move": (np.int8, lambda v, n: ()),
     "next_view": (np.int32, lambda v, n: ()),
     "next_pose": (np.float64, lambda v, n: (6,)),
+    "cover": (bool, lambda v, n: (v,)),
+    "cover_size": (np.int16, lambda v, n: ()),
+    "cover_bound": (np.int16, lambda v, n: ()),
+    "cover_greedy": (np.int16, lambda v, n: ()),
 }
 PER_SHARD = ("grid_palette", "view_positions", "view_poses")
 GENERATED = "nbvdata generate"  # the ``source`` attribute of generated shards: nothing optional
 OPTIONAL = frozenset({"gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"})
 MOVES = frozenset({"move", "next_view", "next_pose"})  # only in runs off the oracle's path
 MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 mean
+COVER = frozenset({"cover", "cover_size", "cover_bound", "cover_greedy"})  # only with oracle.cover
 
 
 class ShardError(ValueError):
@@ -175,11 +193,11 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
     """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
     rename over ``path``.
 
-    ``arrays`` holds every dataset of the schema (the ``OPTIONAL`` and ``MOVES`` ones may be left
-    out); ``attrs`` every attribute but the version.
+    ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES`` and ``COVER`` ones may
+    be left out); ``attrs`` every attribute but the version.
     """
     path = Path(path)
-    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES)
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER)
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
@@ -259,6 +277,8 @@ class Shard:
         optional = OPTIONAL if source != GENERATED else frozenset()
         if not off_oracle_path(config, attrs):
             optional |= MOVES
+        if not has_covers(config):
+            optional |= COVER
         missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file and name not in optional]
         if missing:
             raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
@@ -331,6 +351,12 @@ def off_oracle_path(config: dict, attrs) -> bool:
     ``config`` and attributes: then it holds the ``MOVES`` datasets."""
     episode = config.get("episode", {}) if isinstance(config, dict) else {}
     return episode.get("explore", 0.0) > 0 or "policy" in attrs
+
+
+def has_covers(config: dict) -> bool:
+    """Whether a shard's settings (its ``config``) asked for set-cover labels: then it holds ``COVER``."""
+    oracle = config.get("oracle", {}) if isinstance(config, dict) else {}
+    return bool(oracle.get("cover", False))
 
 
 def shard_files(items: list[Path]) -> list[Path]:

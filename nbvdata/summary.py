@@ -56,6 +56,8 @@ class Summary:
     moves: Counter = field(default_factory=Counter)  # rule code (see MOVE_RULES): moves made by it
     off_label: int = 0  # moves to another view or pose than the state's label
     policies: set[str] = field(default_factory=set)  # JSON ``policy`` attributes
+    covers: dict[int, list[np.ndarray]] = field(default_factory=lambda: defaultdict(list))  # step: (k, 3) rows
+    # of (cover_size, cover_greedy, proved) of the states at that step
 
 
 def dataset_name(source: str) -> str:
@@ -79,7 +81,7 @@ def summarise(paths: list[Path]) -> Summary:
 
 
 LABELS = ("view_positions", "run", "step", "nbv_index", "mesh_id", "coverage", "move", "next_view", "gains",
-          "overlaps")
+          "overlaps", "cover_size", "cover_greedy", "cover_bound")
 
 
 def _labels(shard: Shard) -> dict:
@@ -92,7 +94,8 @@ def _labels(shard: Shard) -> dict:
 def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, view_positions: np.ndarray,
          run: np.ndarray, step: np.ndarray, nbv_index: np.ndarray, mesh_id: np.ndarray | None,
          coverage: np.ndarray | None, move: np.ndarray | None, next_view: np.ndarray | None,
-         gains: np.ndarray | None, overlaps: np.ndarray | None) -> None:
+         gains: np.ndarray | None, overlaps: np.ndarray | None, cover_size: np.ndarray | None,
+         cover_greedy: np.ndarray | None, cover_bound: np.ndarray | None) -> None:
     """Count one shard's labels (``_labels``) into ``summary``."""
     summary.shards += 1
     summary.samples += info.samples
@@ -120,6 +123,11 @@ def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, vie
         summary.best_gain.append(gains[np.arange(len(nbv_index)), nbv_index])
     if overlaps is not None:
         summary.valid_share.append((overlaps >= min_overlap).mean(axis=1))
+    if cover_size is not None:
+        for value in np.unique(step):
+            at = step == value
+            summary.covers[int(value)].append(np.stack([cover_size[at], cover_greedy[at],
+                                                        cover_bound[at] == cover_size[at]], axis=1))
     runs_of = defaultdict(list)
     for i, (mesh, number) in enumerate(zip(mesh_ids, run)):
         runs_of[(mesh, int(number))].append(i)
@@ -160,6 +168,7 @@ def format_summary(summary: Summary, top: int = 10) -> str:
                   f"most frequent NBVs (view: samples): " + ", ".join(
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
     lines += _moves(summary)
+    lines += format_covers(summary.covers)
     for problem in summary.problems:
         lines.append(f"unreadable: {problem}")
     return "\n".join(lines)
@@ -176,6 +185,30 @@ def _moves(summary: Summary) -> list[str]:
     for text in sorted(summary.policies):
         policy = json.loads(text)
         lines.append(f"policy followed: {policy.get('network') or 'a checkpoint'}, checkpoint sha256 {policy['sha256']}")
+    return lines
+
+
+def format_covers(covers: dict[int, list[np.ndarray]], seconds: dict[int, list[float]] | None = None) -> list[str]:
+    """The set-cover labels by step: states, mean optimal size, mean greedy size, share proved
+    optimal (and seconds per label when ``seconds`` gives them); nothing without labels."""
+    if not covers:
+        return []
+    lines = ["", "set-cover labels by step (fewest views covering the rest; greedy: most new points first):",
+             f"{'step':>4s} {'states':>7s} {'optimal':>8s} {'greedy':>7s} {'proved':>7s}"
+             + (f" {'s/label':>8s}" if seconds else "")]
+    every = []
+    for step in sorted(covers):
+        rows = np.concatenate(covers[step])
+        every.append(rows)
+        extra = f" {np.mean(seconds[step]):8.3f}" if seconds else ""
+        lines.append(f"{step:4d} {len(rows):7d} {rows[:, 0].mean():8.2f} {rows[:, 1].mean():7.2f} "
+                     f"{100 * rows[:, 2].mean():6.1f}%{extra}")
+    rows = np.concatenate(every)
+    extra = f" {np.mean([t for s in seconds.values() for t in s]):8.3f}" if seconds else ""
+    lines.append(f"{'all':>4s} {len(rows):7d} {rows[:, 0].mean():8.2f} {rows[:, 1].mean():7.2f} "
+                 f"{100 * rows[:, 2].mean():6.1f}%{extra}")
+    if not seconds:
+        lines.append("(seconds per label are measured where the labels are made: nbvdata generate prints them)")
     return lines
 
 

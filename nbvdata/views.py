@@ -160,7 +160,12 @@ class ViewSet:
 
 def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
     """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""
-    positions = sphere_positions(config.count, config.radius, config.layout)
+    if config.layout == "scvp-32":
+        from nbvdata.layout_scvp import scvp_positions
+
+        positions = scvp_positions(config.radius)
+    else:
+        positions = sphere_positions(config.count, config.radius, config.layout)
     return ViewSet(positions, look_at_rotations(positions))
 
 

@@ -402,8 +402,8 @@ def build_parser() -> Parser:
                           f"released one, {released['regression']})")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
                           "is released: without one the classification planner is skipped)")
-    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,random",
-                          help="comma-separated, of scores,regression,classification,infogain,oracle,random,hybrid "
+    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,setcover,random",
+                          help="comma-separated, of scores,regression,classification,infogain,oracle,setcover,random,hybrid "
                           "(default all but hybrid), and policies on nbvdata.env's observation as module:function or "
                           "path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "

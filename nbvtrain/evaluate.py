@@ -26,9 +26,15 @@ Outputs in the folder ``out``:
                    took to choose that scan's pose (0 for the start), the pose, the pose's overlap
                    and how many candidate views were valid before it (both empty for the start)
     summary.md     coverage after the last scan (objects x planners, best and tied best in bold,
-                   mean row, the paper's Table 1 figures where an object matches), time per NBV,
-                   and how often each planner broke the overlap rule
-    plots/*.png    coverage against scans per object, like the paper's Figs. 8-10
+                   mean row, the paper's Table 1 figures where an object matches), scans to reach
+                   90 / 95 / 99 % of the observable surface beside the floor, time per NBV, and
+                   how often each planner broke the overlap rule
+    floors.csv     one row per (mesh, start): the set cover of what the start scan left
+                   (``nbvdata.setcover``): its size, proven bound and the greedy cover's size;
+                   1 + size is the fewest scans that reach all the observable surface from that
+                   start, the floor no planner can beat
+    plots/*.png    coverage against scans per object, like the paper's Figs. 8-10, with the
+                   floor marked
     config.yaml    the simulation settings and the evaluation's arguments (with ``--manifest``: the
                    version's name, version, manifest sha256 and path, and the part evaluated)
     failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
@@ -56,11 +62,14 @@ from nbvdata.manifest import find_part_meshes, load_manifest
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
+from nbvdata.setcover import solve_cover
 from nbvtrain.planners import Observation, Planner
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
                "x", "y", "z", "overlap", "valid_views")
+FLOOR_COLUMNS = ("mesh", "start", "start_view", "cover_size", "cover_bound", "cover_greedy")
+TARGETS = (0.90, 0.95, 0.99)  # shares of the observable surface for the scans-to-X table
 # Spawn key of the evaluation's start views; nbvdata.episode's per-mesh streams use 0 (reference
 # points), 1 (generation start views) and 2 (generation runs).
 EVALUATION_STREAM = 3
@@ -84,6 +93,7 @@ class EvaluationReport:
     failures: list[tuple[str, str]] = field(default_factory=list)
     seconds: float = 0.0
     min_overlap: float = SimConfig().oracle.min_overlap
+    floors: list[dict] = field(default_factory=list)  # the floors.csv rows
 
 
 def front_view(scene: Scene) -> int:
@@ -106,6 +116,16 @@ def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_r
     order = evaluation_rng(seed, mesh_id).permutation(count)
     free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
     return [front] + [free[k % len(free)] for k in range(starts)]
+
+
+def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
+    """The set cover of what the start scan from ``first_view`` left (the scan as ``reconstruct``
+    casts it with the reconstruction seed ``seed``): cover_size, cover_bound, cover_greedy."""
+    noise, _ = np.random.SeedSequence(seed).spawn(2)
+    state = Reconstruction(scene, None, np.random.default_rng(noise))
+    state.scan_pose(scene.views[first_view])
+    cover = solve_cover(scene.oracle, state.covered, scene.config.oracle.cover_time_limit)
+    return {"cover_size": cover.size, "cover_bound": cover.bound, "cover_greedy": cover.greedy}
 
 
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
@@ -152,8 +172,9 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
                disable=not progress, dynamic_ncols=True)
     with _mesh_runner(workers, bar) as run:
         results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed) for source in sources])
-        for source, (rows, failure) in zip(sources, results):
+        for source, (rows, floors, failure) in zip(sources, results):
             report.rows += rows
+            report.floors += floors
             if failure is not None:
                 name = str(source.path or source.name)
                 report.failures.append((name, failure.removeprefix(f"{name}: ")))  # the caller prints them
@@ -164,10 +185,11 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
 
 def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
                   seed: int, tick: Callable[[int], None] = lambda runs: None,
-                  threads: int = 0) -> tuple[list[dict], str | None]:
-    """One mesh's coverage.csv rows (planner by planner, start by start), and why it could not be
-    used (None if it could). ``tick(runs)`` counts reconstructions; ``threads`` > 0 limits numba,
-    open3d and torch to that many threads (parallel workers pass 1)."""
+                  threads: int = 0) -> tuple[list[dict], list[dict], str | None]:
+    """One mesh's coverage.csv rows (planner by planner, start by start), its floors.csv rows (one
+    per start), and why it could not be used (None if it could). ``tick(runs)`` counts
+    reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
+    (parallel workers pass 1)."""
     if threads:
         _limit_threads(threads)
     try:
@@ -175,8 +197,10 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
         scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id), threads)
     except (MeshError, ValueError, RuntimeError) as error:
         tick(len(planners) * (1 + starts))
-        return [], str(error)
+        return [], [], str(error)
     firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
+    floors = [{"mesh": source.stem, "start": number, "start_view": first}
+              | start_floor(scene, first, run_seed(seed, source.mesh_id, number)) for number, first in enumerate(firsts)]
     rows = []
     for planner in planners:
         for number, first in enumerate(firsts):
@@ -184,7 +208,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
             rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
                      for row in run]
             tick(1)
-    return rows, None
+    return rows, floors, None
 
 
 def _limit_threads(threads: int) -> None:
@@ -248,12 +272,16 @@ def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skip
         writer.writeheader()
         for row in report.rows:
             writer.writerow({key: f"{value:.6f}" if isinstance(value, float) else value for key, value in row.items()})
+    with open(out / "floors.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=FLOOR_COLUMNS)
+        writer.writeheader()
+        writer.writerows(report.floors)
     (out / "summary.md").write_text(summary_markdown(report, planners, skipped))
     (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
     if report.failures:
         lines = ["mesh\treason\n"] + [f"{name}\t{' '.join(reason.split())}\n" for name, reason in report.failures]
         (out / "failures.tsv").write_text("".join(lines))
-    plot_coverage(report.rows, out / "plots")
+    plot_coverage(report.rows, out / "plots", report.floors)
 
 
 def final_coverage(rows: list[dict], key: str = "coverage") -> dict[tuple[str, str], np.ndarray]:
@@ -317,6 +345,7 @@ def summary_markdown(report: EvaluationReport, planners: list[str], skipped: lis
     lines += coverage_table(rows, planners, "coverage")
     lines += ["", f"Observable coverage (%) after scan {scans}: of the surface some candidate view can see.", ""]
     lines += coverage_table(rows, planners, "observable_coverage")
+    lines += ["", *scans_table(rows, report.floors, planners)]
     lines += ["", "Time per NBV (the planner's decision; the paper's on a GTX 1080).", "",
               "| planner | median ms | mean ms | max ms | decisions | paper s |", "|---|---|---|---|---|---|"]
     times = defaultdict(list)
@@ -335,6 +364,61 @@ def summary_markdown(report: EvaluationReport, planners: list[str], skipped: lis
     lines += [f"- {message}" for message in skipped]
     lines += [f"- mesh {name} failed: {reason}" for name, reason in report.failures]
     return "\n".join(lines) + "\n"
+
+
+def scans_to(rows: list[dict], targets: tuple[float, ...] = TARGETS) -> dict[tuple[str, str], list[list]]:
+    """(mesh, planner) -> per start (in start order), per target: the first scan whose observable
+    coverage reaches the target (the start scan counts), None when no scan does."""
+    runs = defaultdict(dict)
+    for row in rows:
+        runs[(row["mesh"], row["planner"], row["start"])][row["scan"]] = row["observable_coverage"]
+    result = defaultdict(list)
+    for (mesh, planner, _), coverage in sorted(runs.items()):
+        result[(mesh, planner)].append([next((scan for scan in sorted(coverage) if coverage[scan] >= target - 1e-9),
+                                             None) for target in targets])
+    return dict(result)
+
+
+def scans_table(rows: list[dict], floors: list[dict], planners: list[str]) -> list[str]:
+    """Markdown: scans to reach 90 / 95 / 99 % of the observable surface per object and planner
+    (mean over starts; "n.r." when some start did not within the run's scans), beside the floor
+    (1 + the optimal cover of what the start scan left: the fewest scans to 100 %) and the greedy
+    set cover's scans."""
+    reached = scans_to(rows)
+    meshes = sorted({mesh for mesh, _ in reached})
+    planners = [p for p in planners if any((m, p) in reached for m in meshes)]
+    if not meshes:
+        return []
+    targets = " / ".join(f"{100 * t:g}" for t in TARGETS)
+    lines = [f"Scans to reach {targets} % of the observable surface (the start scan counts; mean over starts; "
+             "n.r.: not reached within the run's scans by some start). Floor: 1 + the fewest views that cover "
+             "all that the start scan left (the set cover, proved optimal unless marked >=): no planner reaches "
+             "100 % in fewer scans. Greedy cover: 1 + the greedy set cover's size (most new points first).", "",
+             "| object | " + " | ".join(planners) + " | floor (100 %) | greedy cover (100 %) |",
+             "|---" * (len(planners) + 3) + "|"]
+    by_mesh = defaultdict(list)
+    for floor in floors:
+        by_mesh[floor["mesh"]].append(floor)
+    for mesh in meshes:
+        cells = []
+        for planner in planners:
+            if (mesh, planner) not in reached:
+                cells.append("-")
+                continue
+            per_start = np.array(reached[(mesh, planner)], dtype=object)  # (starts, targets)
+            cells.append(" / ".join("n.r." if any(v is None for v in column) else f"{np.mean(column.astype(float)):.1f}"
+                                    for column in per_start.T))
+        mesh_floors = by_mesh.get(mesh, [])
+        if mesh_floors:
+            sizes = np.array([1 + f["cover_size"] for f in mesh_floors], dtype=float)
+            proved = all(f["cover_bound"] == f["cover_size"] for f in mesh_floors)
+            bound = np.mean([1 + f["cover_bound"] for f in mesh_floors])
+            floor = f"{sizes.mean():.1f}" if proved else f">= {bound:.1f} (best {sizes.mean():.1f})"
+            greedy = f"{np.mean([1 + f['cover_greedy'] for f in mesh_floors]):.1f}"
+        else:
+            floor = greedy = "-"
+        lines.append(f"| {mesh} | " + " | ".join(cells) + f" | {floor} | {greedy} |")
+    return lines
 
 
 def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> list[str]:
@@ -357,9 +441,10 @@ def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> 
     return lines
 
 
-def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
+def plot_coverage(rows: list[dict], folder: Path, floors: list[dict] = ()) -> list[Path]:
     """One PNG per object: coverage (%) against scans, a line per planner (mean over starts,
-    shaded from the lowest to the highest start; the legend and title say so)."""
+    shaded from the lowest to the highest start; the legend and title say so), and a dotted line at
+    the floor: the fewest scans that cover all the observable surface (mean over starts, ``floors``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -381,6 +466,9 @@ def plot_coverage(rows: list[dict], folder: Path) -> list[Path]:
             (line,) = axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
             if len(values) > 1:
                 axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
+        sizes = [1 + floor["cover_size"] for floor in floors if floor["mesh"] == mesh]
+        if sizes:
+            axes.axvline(np.mean(sizes), color="0.4", linestyle=":", label="floor: fewest scans to all observable")
         handles = axes.get_legend_handles_labels()[0]
         title = mesh
         if max(counts) > 1:  # lines are means over the starts, bands their range

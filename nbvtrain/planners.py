@@ -27,6 +27,11 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   first such voxel is known occupied (surface seen before) must be >= ``min_overlap``; when no
   view passes, the most informative view is taken (as the oracle does).
 - ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
+- ``setcover``: SCVP's one-shot plan, privileged like the oracle: at its first decision it
+  solves the state's set cover (``nbvdata.setcover``, the fewest views that cover the rest) once,
+  then scans the planned views, the one adding the most new surface first; with the plan done
+  (everything observable covered) it takes the view adding the most, as the oracle without the
+  overlap rule. The overlap rule is no part of the plan, as in SCVP.
 - ``random``: a seeded uniformly random candidate view.
 - ``module:function`` (or ``path/to/file.py:function``): a policy on the observation of the
   reconstruction environment ``nbvdata.env`` (``PolicyPlanner``), e.g. one trained by RL.
@@ -62,7 +67,7 @@ from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, spher
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
 
-PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "random", "hybrid")
+PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "hybrid")
 LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
 
 
@@ -240,6 +245,35 @@ class OraclePlanner(Planner):
         scores = truth.scene.oracle.score(truth.covered)
         best = scores.best(self.min_overlap)
         return self.views[best if best is not None else int(np.argmax(scores.gains))]
+
+
+class SetCoverPlanner(Planner):
+    """SCVP's plan: the set cover of the first state it sees, scanned most new surface first
+    (see the module docstring); ``time_limit``: seconds for that one solve."""
+
+    name = "setcover"
+    privileged = True
+
+    def __init__(self, views: ViewSet, time_limit: float):
+        self.views, self.time_limit = views, time_limit
+        self.plan: list[int] | None = None
+
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        self.plan = None
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        from nbvdata.setcover import solve_cover
+
+        oracle = truth.scene.oracle
+        if self.plan is None:
+            self.plan = list(solve_cover(oracle, truth.covered, self.time_limit).views)
+        new = oracle.score(truth.covered).new
+        if self.plan:
+            view = max(self.plan, key=lambda v: (new[v], -v))  # most new surface, ties to the lowest index
+            self.plan.remove(view)
+        else:
+            view = int(np.argmax(new))
+        return self.views[view]
 
 
 class RandomPlanner(Planner):
@@ -480,6 +514,8 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                                             config.oracle.min_overlap, layout=config.views.layout))
         elif name == "oracle":
             planners.append(OraclePlanner(views, config.oracle.min_overlap))
+        elif name == "setcover":
+            planners.append(SetCoverPlanner(views, config.oracle.cover_time_limit))
         elif name == "random":
             planners.append(RandomPlanner(views))
         elif ":" in name:

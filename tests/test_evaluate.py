@@ -87,9 +87,9 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
                  "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
                  str(checkpoints["nbvscore-3"]), "--scans", "5", "--starts", "2",
                  "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
-    assert "36 reconstructions" in capsys.readouterr().out
+    assert "42 reconstructions" in capsys.readouterr().out
     rows = _rows(out / "coverage.csv")
-    planners = ["scores", "regression", "classification", "infogain", "oracle", "random"]
+    planners = ["scores", "regression", "classification", "infogain", "oracle", "setcover", "random"]
     assert len(rows) == 2 * len(planners) * 3 * 5  # meshes x planners x starts x scans
     assert {r["planner"] for r in rows} == set(planners) and {r["mesh"] for r in rows} == {"mug", "ring"}
     runs: dict[tuple, list[dict]] = {}
@@ -107,7 +107,7 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
         oracle = float(runs[(mesh, "oracle", start)][-1]["coverage"])
         assert oracle >= float(runs[(mesh, "random", start)][-1]["coverage"])
     summary = (out / "summary.md").read_text()
-    assert "| object | scores | regression | classification | infogain | oracle | random |" in summary
+    assert "| object | scores | regression | classification | infogain | oracle | setcover | random |" in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
     assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
@@ -140,7 +140,7 @@ def test_two_workers_give_the_same_outputs_as_one(meshes, checkpoints, tmp_path,
     finally:
         (meshes / "broken.obj").unlink()
     rows = outputs["1"][0]
-    assert len(rows) == 2 * 6 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
+    assert len(rows) == 2 * 7 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
     assert outputs["2"] == outputs["1"]
 
 
@@ -229,7 +229,8 @@ def _run_guarded(config, scene, planners, meshes, monkeypatch):
 
 
 def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, monkeypatch):
-    planners, _ = build_planners(["scores", "regression", "classification", "infogain", "random", "oracle"], config,
+    planners, _ = build_planners(["scores", "regression", "classification", "infogain", "random", "setcover", "oracle"],
+                                 config,
                                  scene.views, _learned(checkpoints))
     report = _run_guarded(config, scene, planners, meshes, monkeypatch)
     assert len(report.rows) == len(planners) * 3 and not report.failures
