@@ -260,6 +260,16 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """Write shards, or a published version's, in another project's file layout (``nbvdata.export``)."""
+    from nbvdata.export import describe, export
+
+    started = time.perf_counter()
+    report = export(args.shards, args.format, args.out, args.root)
+    print(f"{describe(report, args.format)} in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
 def cmd_show(args: argparse.Namespace) -> int:
     """Render a shard sample, a saved grid (.npy), or the grid after scanning an object."""
     from nbvdata.render import render_state
@@ -294,7 +304,8 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def _show_sample(args: argparse.Namespace) -> int:
-    """Render sample ``--index`` of a shard with its NBV (red) and the next best candidates."""
+    """Render sample ``--index`` of a shard with its NBV (red), the next best candidates and, when
+    the shard holds point clouds, the state's cloud."""
     from nbvdata.render import render_state
     from nbvdata.shards import Shard
     from nbvdata.views import ViewSet, look_at_rotations
@@ -311,6 +322,9 @@ def _show_sample(args: argparse.Namespace) -> int:
         gains = shard.file["gains"][i] if scored else None
         overlaps = shard.file["overlaps"][i] if scored else None
         coverage = shard.file["coverage"][i] if shard.has("coverage") else None
+        points = None
+        if shard.has("points"):  # the state's cloud: all its points when there were fewer than P
+            points = shard.file["points"][i][:max(1, min(int(shard.file["points_count"][i]), shard.file["points"].shape[1]))]
         config = shard.info.config
         source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
     views = ViewSet(positions, look_at_rotations(positions))
@@ -326,7 +340,7 @@ def _show_sample(args: argparse.Namespace) -> int:
     extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
               or SimConfig().scene_grid.extent)
     out = render_state(probabilities, extent, args.out, views, highlight=nbv,
-                       others=ranked[:args.top], title=title)
+                       others=ranked[:args.top], title=title, points=points)
     print(f"wrote {out}")
     return 0
 
@@ -406,6 +420,16 @@ def build_parser() -> argparse.ArgumentParser:
                      help="accept a shard whose file bytes differ when every array and attribute equals the "
                      "published one (a regeneration written by another HDF5 library, say)")
     ver.set_defaults(func=cmd_verify)
+
+    export = sub.add_parser("export", help="write shards in another project's file layout (PC-NBV's)")
+    export.add_argument("shards", type=Path, nargs="+", help="shard files or folders, or one published version's "
+                        "manifest (manifests/NAME-X.Y.Z.json: verified first)")
+    export.add_argument("--format", required=True, help="pc-nbv: PC-NBV's per-state viewstate/acc_pc/target_value "
+                        ".npy files, gt.xyz and viewspace.txt (needs shards made with --set state.points=N)")
+    export.add_argument("--out", type=Path, required=True, help="a new folder to write")
+    export.add_argument("--root", type=Path, help="with a manifest: the folder holding its shards (default: the "
+                        "one it records)")
+    export.set_defaults(func=cmd_export)
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",

@@ -186,6 +186,8 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         recorded = ("nbv_index", "gains", "overlaps", "coverage", "last_view")
         if episode.explore > 0 or planner is not None:  # off the oracle's path: record the moves
             recorded += tuple(sorted(MOVES))
+        if config.state.points:
+            recorded += ("points", "points_count")
         columns: dict[str, list] = defaultdict(list)
         palette = GridPalette()
         for run in range(*unit.runs):
@@ -244,7 +246,7 @@ def _mesh_scene(source: MeshSource, config: SimConfig, threads: int) -> tuple[Ob
         return scenes[key]
     obj = source.load(config.mesh)
     scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
-    entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
+    entry = obj, scene, ViewCache(scene, config.state.points > 0) if config.sensor.noise_std == 0 else None
     if SCENE_CACHE_SIZE > 0:
         scenes[key] = entry
         while len(scenes) > SCENE_CACHE_SIZE:
@@ -279,7 +281,11 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
         "move": np.asarray(columns["move"], dtype=np.int8),
         "next_view": np.asarray(columns["next_view"], dtype=np.int32),
         "next_pose": np.asarray(columns["next_pose"], dtype=np.float64).reshape(count, 6),
-    } if "move" in columns else {})
+    } if "move" in columns else {}) | ({
+        "points": np.asarray(columns["points"], dtype=np.float32).reshape(count, scene.config.state.points, 3),
+        "points_count": np.asarray(columns["points_count"], dtype=np.int32),
+        "reference_points": scene.coverage.points.astype(np.float32),
+    } if scene.config.state.points else {})
 
 
 # ---------------------------------------------------------------------------------------------

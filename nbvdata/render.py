@@ -1,6 +1,7 @@
 """Headless pictures of a reconstruction state, like the paper's Fig. 1.
 
-Occupied voxels are blue, unknown voxels yellow, candidate views grey dots, and highlighted
+Occupied voxels are blue, unknown voxels yellow, a partial point cloud (if given) black dots,
+candidate views grey dots, and highlighted
 views arrows pointing at the object centre (red for the chosen one, orange for others); a legend
 says so, with the voxel counts. The PNG is cropped to what is drawn.
 """
@@ -37,12 +38,13 @@ def render_state(
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
+    points: np.ndarray | None = None,
 ) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
     The arguments are those of ``draw_state``.
     """
-    fig = draw_state(probabilities, extent, views, highlight, others, title, labels, views_label)
+    fig = draw_state(probabilities, extent, views, highlight, others, title, labels, views_label, points)
     fig.canvas.draw()
     pixels = np.asarray(fig.canvas.buffer_rgba())
     height = pixels.shape[0]
@@ -89,6 +91,7 @@ def draw_state(
     title: str = "",
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
+    points: np.ndarray | None = None,
 ) -> Figure:
     """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
@@ -98,6 +101,7 @@ def draw_state(
     others : indices drawn as orange arrows (e.g. the runner-up candidates)
     labels : what the red and the orange arrows are, for the legend
     views_label : what the grey dots are, for the legend
+    points : (P, 3) a partial point cloud in metres, object frame, drawn as black dots
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -120,6 +124,11 @@ def draw_state(
     legend = [Patch(facecolor=OCCUPIED, edgecolor="0.3", label=f"occupied ({occupied.sum()} voxels)"),
               Patch(facecolor=UNKNOWN[:3] + (0.5,), edgecolor="0.3", label=f"unknown ({unknown.sum()})"),
               Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
+    if points is not None and len(points):
+        ax.computed_zorder = False  # the cloud over the voxels, not hidden among them
+        ax.scatter(*to_grid(points).T, s=2, c="black", depthshade=False, zorder=10)
+        legend.append(Line2D([], [], linestyle="", marker="o", markersize=2, color="black",
+                             label=f"partial cloud ({len(points)} points)"))
     upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
         positions = to_grid(views.positions)

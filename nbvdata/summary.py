@@ -4,7 +4,8 @@ the views. Backs ``nbvdata inspect``; reads everything but the grids.
 Imported shards (no ``mesh_id``) count under one entry per dataset, named by their ``source``
 without its row range; statistics of datasets they lack (gains, overlaps, coverage) show "-".
 Shards whose runs left the oracle's path (``move``: exploration, a policy) add how the runs
-moved and which policy they followed.
+moved and which policy they followed; shards with point clouds (``points_count``) the mean
+number of points scanned by each step.
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ class Summary:
     moves: Counter = field(default_factory=Counter)  # rule code (see MOVE_RULES): moves made by it
     off_label: int = 0  # moves to another view or pose than the state's label
     policies: set[str] = field(default_factory=set)  # JSON ``policy`` attributes
+    cloud_points: set[int] = field(default_factory=set)  # the shards' state.points (those with clouds)
+    scanned_by_step: dict[int, list[int]] = field(default_factory=dict)  # step: [sum of points_count, states]
 
 
 def dataset_name(source: str) -> str:
@@ -98,6 +101,12 @@ def summarise(paths: list[Path]) -> Summary:
                 move, moved = shard["move"], shard["move"] >= 0
                 summary.moves.update(move[moved].tolist())
                 summary.off_label += int((shard["next_view"][moved] != nbv[moved]).sum())
+            if shard.has("points_count"):
+                summary.cloud_points.add(int(shard.file["points"].shape[1]))
+                for step, count in zip(steps.tolist(), shard["points_count"].tolist()):
+                    total = summary.scanned_by_step.setdefault(step, [0, 0])
+                    total[0] += count
+                    total[1] += 1
             if shard.has("gains"):
                 summary.best_gain.append(shard["gains"][np.arange(len(nbv)), nbv])
             if shard.has("overlaps"):
@@ -143,6 +152,7 @@ def format_summary(summary: Summary, top: int = 10) -> str:
                   f"most frequent NBVs (view: samples): " + ", ".join(
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
     lines += _moves(summary)
+    lines += _clouds(summary)
     for problem in summary.problems:
         lines.append(f"unreadable: {problem}")
     return "\n".join(lines)
@@ -160,6 +170,15 @@ def _moves(summary: Summary) -> list[str]:
         policy = json.loads(text)
         lines.append(f"policy followed: {policy.get('network') or 'a checkpoint'}, checkpoint sha256 {policy['sha256']}")
     return lines
+
+
+def _clouds(summary: Summary) -> list[str]:
+    """Points scanned per state by step, when the shards hold point clouds (nothing otherwise)."""
+    if not summary.scanned_by_step:
+        return []
+    sizes = ", ".join(str(size) for size in sorted(summary.cloud_points))
+    means = ", ".join(f"{step}: {total / states:,.0f}" for step, (total, states) in sorted(summary.scanned_by_step.items()))
+    return [f"point clouds: {sizes} points per state (farthest-point sampled); points scanned, mean by step: {means}"]
 
 
 def _median(parts: list[np.ndarray], spec: str) -> str:

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from nbvdata.manifest import Published, mesh_split, random_split
-from nbvdata.shards import Shard, ShardError
+from nbvdata.shards import Shard, ShardError, view_state  # noqa: F401 (view_state: public here too)
 from nbvdata.text import plural
 from nbvtrain.scene import scene_record_of
 
@@ -158,35 +158,6 @@ def _valid_views(shard: Shard) -> np.ndarray | None:
     if not shard.has("overlaps") or min_overlap is None:
         return None
     return shard["overlaps"].astype(np.float64) >= float(min_overlap)
-
-
-def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
-    """(N, V) bool: the candidate views each state has scanned.
-
-    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
-    view only); last_view : (N,) int the view scanned last. A run records its states at steps
-    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
-    by a state are the last views of its run's states up to its step. ValueError when a run's
-    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
-    """
-    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
-    if len(last_view) and last_view.min() < 0:
-        raise ValueError("last_view -1: states reached through a pose that is no candidate view (a regression or "
-                         "classification --policy rollout), whose view state is unknown; train score networks on "
-                         "other shards")
-    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
-        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
-    taken = np.zeros((len(run), views), dtype=bool)
-    order = np.lexsort((step, run))
-    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
-    for rows in np.split(order, starts[1:]) if len(order) else []:
-        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
-            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
-                             "the views before a missing state are unknown")
-        scanned = np.zeros((len(rows), views), dtype=bool)
-        scanned[np.arange(len(rows)), last_view[rows]] = True
-        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
-    return taken
 
 
 def load_view_states(paths: list[Path]) -> np.ndarray:
