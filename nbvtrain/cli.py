@@ -69,7 +69,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     checkpoint = args.checkpoint or released_checkpoint("scores")
     predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius)
     taken = None
-    if args.grid.suffix == ".npy":
+    if predictor.inputs == "points":
+        grid, source, taken = _cloud_input(args, predictor)
+    elif args.grid.suffix == ".npy":
         try:
             grid = np.load(args.grid)
         except (OSError, ValueError) as error:
@@ -97,6 +99,28 @@ def cmd_predict(args: argparse.Namespace) -> int:
         raise ShardError(f"{source}: {error}") from None
     print(prediction_json(prediction, predictor, source, taken))
     return 0
+
+
+def _cloud_input(args: argparse.Namespace, predictor) -> tuple[np.ndarray, str, np.ndarray | None]:
+    """(cloud (M, 3), source, view state or None) for a point network: a cloud file (.npy, .ply,
+    .pcd, .xyz: every scanned point, object frame, metres) or a shard sample's stored cloud and view
+    state. ShardError for a shard without clouds, SensorDataError for a bad cloud file."""
+    if args.grid.suffix not in (".h5", ".hdf5"):
+        from nbvtrain.sensordata import read_cloud
+
+        return read_cloud(args.grid), str(args.grid), None
+    with Shard(args.grid) as shard:
+        if not 0 <= args.index < len(shard):
+            raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
+        if not shard.has("points"):
+            raise ShardError(f"{args.grid}: holds no point clouds, which {predictor.name} reads: give a cloud file "
+                             "(.npy, .ply, .pcd, .xyz) or a shard made with --set state.points=N")
+        count = min(int(shard.file["points_count"][args.index]), shard.file["points"].shape[1])
+        cloud = shard.file["points"][args.index][:max(count, 1)]
+        from nbvdata.shards import view_state
+
+        states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
+        return cloud, f"{args.grid}[{args.index}]", states[args.index]
 
 
 def _scanned(text: str, predictor) -> np.ndarray:
@@ -267,8 +291,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="show a progress bar (default: on a terminal)")
     fit.set_defaults(func=cmd_fit)
 
-    predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
-    predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard")
+    predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid or cloud, as JSON")
+    predict.add_argument("grid", type=Path, help="a .npy grid (32^3 probabilities, 0.5 = unknown) or a shard; for a "
+                         "point network (nbvscore-pc) a cloud (.npy (M, 3), .ply, .pcd, .xyz: every scanned point, "
+                         "object frame, metres) or a shard made with state.points")
     predict.add_argument("--index", type=int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
                          "released score network)")

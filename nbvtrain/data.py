@@ -33,6 +33,67 @@ class InMemoryGrids:
         pass
 
 
+class InMemoryClouds:
+    """(N, P, 3) float32 partial clouds held in one array."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        """(B,) sample indices -> (B, P, 3) float32 points."""
+        return self.points[indices]
+
+    def close(self) -> None:
+        pass
+
+
+class LazyClouds:
+    """Clouds read from the shards at each request (for datasets larger than memory)."""
+
+    def __init__(self, paths: list[Path], offsets: np.ndarray):
+        self.shards = [Shard(path) for path in paths]
+        self.offsets = offsets
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        indices = np.asarray(indices)
+        out = np.empty((len(indices),) + self.shards[0].file["points"].shape[1:], dtype=np.float32)
+        which = np.searchsorted(self.offsets, indices, side="right") - 1
+        for s in np.unique(which):
+            mine = np.flatnonzero(which == s)
+            rows = indices[mine] - self.offsets[s]
+            unique_rows, inverse = np.unique(rows, return_inverse=True)  # h5py wants increasing rows
+            out[mine] = self.shards[s].file["points"][unique_rows][inverse]
+        return out
+
+    def close(self) -> None:
+        for shard in self.shards:
+            shard.close()
+
+
+def load_clouds(paths: list[Path], model: str, memory_limit_gb: float = 8.0) -> InMemoryClouds | LazyClouds:
+    """The partial clouds (``points``) of every sample of ``paths``, in memory when they take at
+    most ``memory_limit_gb``; ShardError naming the shard when one holds none (a point network
+    ``model`` reads them) or the shards' clouds differ in size."""
+    counts, sizes = [], set()
+    for path in paths:
+        with Shard(path) as shard:
+            if not shard.has("points"):
+                raise ShardError(f"{path}: holds no point clouds, which {model} reads: generate the shards with "
+                                 "--set state.points=1024 (or train a grid network)")
+            counts.append(len(shard))
+            sizes.add(shard.file["points"].shape[1])
+    if len(sizes) > 1:
+        raise ShardError(f"the shards hold clouds of different sizes {sorted(sizes)}: train on one kind at a time")
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    if sum(counts) * sizes.pop() * 12 > memory_limit_gb * 2 ** 30:
+        return LazyClouds(list(paths), offsets)
+    parts = []
+    for path in paths:
+        with Shard(path) as shard:
+            parts.append(shard["points"])
+    return InMemoryClouds(np.concatenate(parts))
+
+
 class LazyGrids:
     """Codes read from the shards at each request (for datasets larger than memory)."""
 
@@ -73,6 +134,8 @@ class ShardSet:
     view_radius  : metres from the object centre to the views
     scene        : the grid and view settings the shards were made with (``nbvtrain.scene.scene_record``),
                    or None when a shard records none (imported data) or they differ
+    clouds       : the partial clouds (``load_clouds``: ``take(indices)`` -> (B, P, 3)), or None when
+                   not asked for
     """
 
     paths: list[Path]
@@ -86,16 +149,30 @@ class ShardSet:
     view_radius: float
     grid_size: int
     scene: dict | None = None
+    clouds: InMemoryClouds | LazyClouds | None = None
 
     def __len__(self) -> int:
         return len(self.targets)
 
+    @property
+    def cloud_points(self) -> int | None:
+        """Points per cloud (the shards' ``state.points``), None without clouds."""
+        if self.clouds is None:
+            return None
+        source = self.clouds.points if isinstance(self.clouds, InMemoryClouds) else self.clouds.shards[0].file["points"]
+        return int(source.shape[1])
+
     def close(self) -> None:
         self.grids.close()
+        if self.clouds is not None:
+            self.clouds.close()
 
 
-def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
-    """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard."""
+def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, clouds: str | None = None) -> ShardSet:
+    """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard.
+
+    ``clouds``: the name of a point network that reads the shards' partial clouds: they are
+    loaded too (``load_clouds``), and the grids it does not read are left on disk."""
     if not paths:
         raise ShardError("no shards given: pass .h5 files or folders written by nbvdata generate")
     infos = []
@@ -125,8 +202,9 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
     if total == 0:
         raise ShardError(f"no samples in the {plural(len(paths), 'shard')} given: generate more runs or other meshes")
 
+    cloud_source = None if clouds is None else load_clouds(paths, clouds, memory_limit_gb)
     nbytes = total * size ** 3 * np.dtype(code_type).itemsize
-    if nbytes <= memory_limit_gb * 2 ** 30:
+    if clouds is None and nbytes <= memory_limit_gb * 2 ** 30:
         codes = np.empty((total, size, size, size), dtype=code_type)
         for path, lut, start, count in zip(paths, luts, offsets, counts):
             if count:
@@ -149,7 +227,8 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0) -> ShardSet:
         valid=np.concatenate([info["valid"] for info in infos]) if has_gains else None,
         view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
         view_radius=radius, grid_size=size,
-        scene=infos[0]["scene"] if all(info["scene"] == infos[0]["scene"] for info in infos) else None)
+        scene=infos[0]["scene"] if all(info["scene"] == infos[0]["scene"] for info in infos) else None,
+        clouds=cloud_source)
 
 
 def _valid_views(shard: Shard) -> np.ndarray | None:

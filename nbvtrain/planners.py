@@ -54,17 +54,22 @@ class Observation:
 
     probabilities : (n, n, n) float32 occupancy grid, authors' encoding (0.5 = unknown)
     poses : the sensor poses scanned so far, oldest first
+    points : (M, 3) float32 every point scanned so far, object frame, oldest scan first
+             (``nbvdata.cloud.ScannedCloud``); None when the run keeps none
     """
 
     probabilities: np.ndarray
     poses: tuple[Pose, ...]
+    points: np.ndarray | None = None
 
 
 class Planner:
-    """Base class. ``privileged`` planners also receive the simulation's state (the oracle)."""
+    """Base class. ``privileged`` planners also receive the simulation's state (the oracle);
+    ``reads_points`` ones the scanned points (``Observation.points``)."""
 
     name = "planner"
     privileged = False
+    reads_points = False
 
     def start(self, seed: int | np.random.SeedSequence) -> None:
         """Called before every reconstruction; ``seed`` is that reconstruction's stream for the
@@ -98,6 +103,7 @@ class LearnedPlanner(Planner):
             raise ConfigError(f"{checkpoint}: scores {len(self.predictor.view_units)} candidate views other than this "
                               f"run's {len(views)}: run with the settings it was trained with (--config/--set views.*)")
         self.views, self.no_stall = views, no_stall and task != "scores"
+        self.reads_points = self.predictor.inputs == "points"
         self.name = expect + ("-nostall" if self.no_stall else "")
         self._arguments = (checkpoint, radius, expect, views, no_stall, config)
 
@@ -112,8 +118,13 @@ class LearnedPlanner(Planner):
         return scanned_views(positions, self.views.unit_positions)
 
     def next_view(self, observation: Observation) -> int:
-        """A score network's choice as a candidate view index (``next_pose`` is its pose)."""
+        """A score network's choice as a candidate view index (``next_pose`` is its pose); a point
+        network reads the scanned points, reduced as the generator reduces them."""
         taken = self.scanned(observation)
+        if self.reads_points:
+            if observation.points is None:
+                raise ValueError(f"{self.predictor.name} reads the scanned points: the run must keep them")
+            return int(pick(self.predictor.raw(observation.points, taken), taken[None])[0])
         return int(pick(self.predictor.raw(observation.probabilities, taken), taken[None])[0])
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:

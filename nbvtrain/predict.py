@@ -24,10 +24,11 @@ from typing import Callable
 import numpy as np
 import torch
 
+from nbvdata.cloud import reduce_cloud
 from nbvdata.config import ConfigError
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions
+from nbvtrain.models import GRID_SIZE, NBVNet, PointScoreNet, ScoreNet, class_positions
 from nbvtrain.scores import pick
 
 
@@ -51,22 +52,33 @@ class Predictor:
     def __init__(self, checkpoint: str | Path, device: str = "cpu", k: float = 1.0, radius: float | None = None):
         path = self.path = Path(checkpoint)
         state = load_checkpoint(path)
-        self.model: NBVNet | ScoreNet = model_from(state, path)
+        self.model: NBVNet | ScoreNet | PointScoreNet = model_from(state, path)
         try:
             self.device = torch.device(device)
             self.model.to(self.device).eval()
         except (RuntimeError, AssertionError) as error:  # an unknown device, or one this torch lacks
             raise ConfigError(f"device {device!r}: {str(error).strip()[:80]}: use cpu") from None
-        self._features = _fast_features(self.model, self.device)
+        self.inputs = self.model.inputs
+        self._features = _fast_features(self.model, self.device) if self.inputs == "grid" else None
         self.name, self.epoch, self.scene = state["model"], state["epoch"], state.get("scene")
+        self.points = int(state.get("points") or 1024) if self.inputs == "points" else None
         self.view_units = state["view_units"].double().numpy() if self.model.task == "scores" else None
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)
 
-    def raw(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
+    def raw(self, grids: np.ndarray | list[np.ndarray], taken: np.ndarray | None = None) -> np.ndarray:
         """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
         positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
-        scanned views, default none). GridError (a ValueError) for a bad grid (``check_grids``)."""
+        scanned views, default none). GridError (a ValueError) for a bad grid (``check_grids``).
+
+        A point network (``inputs`` "points") takes clouds instead: one (M, 3) array or a list of
+        B, object frame, metres, any M >= 1 - every point scanned, reduced here to the checkpoint's
+        ``points`` as the generator reduces them (``nbvdata.cloud.reduce_cloud``)."""
+        if self.inputs == "points":
+            clouds = torch.from_numpy(self.clouds(grids)).to(self.device)
+            with torch.inference_mode():
+                state = torch.from_numpy(self.taken(taken, len(clouds))).to(self.device)
+                return self.model(clouds, state).cpu().numpy().astype(np.float64)
         grids = torch.from_numpy(check_grids(grids)).to(self.device).unsqueeze(1)
         with torch.inference_mode():
             if self.model.task != "scores":
@@ -74,6 +86,13 @@ class Predictor:
             state = self.taken(taken, len(grids))
             features = self._features(self.model.encode(grids))
             return self.model.head(features, torch.from_numpy(state).to(self.device)).cpu().numpy().astype(np.float64)
+
+    def clouds(self, clouds: np.ndarray | list[np.ndarray]) -> np.ndarray:
+        """(B, points, 3) float32: each cloud (``check_cloud``) reduced to the checkpoint's size."""
+        clouds = [clouds] if isinstance(clouds, np.ndarray) and np.ndim(clouds) == 2 else list(clouds)
+        if not clouds:
+            raise GridError(f"no point cloud given: {self.name} reads one (M, 3) cloud per state")
+        return np.stack([reduce_cloud(check_cloud(cloud), self.points)[0] for cloud in clouds])
 
     def taken(self, taken: np.ndarray | None, batch: int) -> np.ndarray:
         """(B, V) bool view states of a score network from (V,), (B, V) or None (nothing scanned)."""
@@ -86,7 +105,8 @@ class Predictor:
         return np.array(state)  # a writable copy (torch.from_numpy wants one)
 
     def outputs(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
-        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale):
+        """(B, n, n, n) or (n, n, n) probabilities (a point network: clouds, see ``raw``) -> (B, 3)
+        network positions (unit-sphere scale):
         the regression output, the chosen class's view, or the unscanned candidate view (``taken``,
         see ``raw``) with the highest score. GridError (a ValueError) for a bad grid."""
         raw = self.raw(grids, taken)
@@ -97,7 +117,8 @@ class Predictor:
         return raw
 
     def predict(self, grids: np.ndarray, taken: np.ndarray | None = None) -> list[NBVPrediction]:
-        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown; a point network: clouds,
+        see ``raw``) -> B predictions
         (``taken``: a score network's scanned views, see ``raw``). GridError (a ValueError) for a
         bad grid (see ``check_grids``)."""
         predictions = []
@@ -135,6 +156,24 @@ def check_grids(grids: np.ndarray) -> np.ndarray:
             raise GridError(f"grid holds values in [{low:g}, {high:g}], outside [0, 1]: expected {ENCODING}")
     array = array.astype(np.float32, copy=False)
     return array[None] if array.ndim == 3 else array
+
+
+CLOUD = "(M, 3) finite float points, object frame, metres, M >= 1"
+
+
+def check_cloud(cloud: np.ndarray) -> np.ndarray:
+    """(M, 3) float32 of a cloud; GridError for another shape, a non-float dtype, no points or
+    NaN/infinite coordinates."""
+    array = np.asarray(cloud)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise GridError(f"cloud has shape {array.shape}, expected {CLOUD}")
+    if array.dtype.kind != "f":
+        raise GridError(f"cloud has dtype {array.dtype}, expected {CLOUD}")
+    if not len(array):
+        raise GridError(f"cloud holds no points: expected {CLOUD}")
+    if not np.isfinite(array).all():
+        raise GridError(f"cloud holds NaN or infinite coordinates: expected {CLOUD}")
+    return array.astype(np.float32, copy=False)
 
 
 def _fast_features(model: NBVNet | ScoreNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:
