@@ -168,11 +168,13 @@ class ShardSet:
             self.clouds.close()
 
 
-def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, clouds: str | None = None) -> ShardSet:
+def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, clouds: str | None = None,
+                grids: bool = True) -> ShardSet:
     """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard.
 
-    ``clouds``: the name of a point network that reads the shards' partial clouds: they are
-    loaded too (``load_clouds``), and the grids it does not read are left on disk."""
+    ``clouds``: what reads the shards' partial clouds (a point network's name, for messages): they
+    are loaded too (``load_clouds``). ``grids`` False: the grids are not wanted, left on disk
+    (read lazily if at all)."""
     if not paths:
         raise ShardError("no shards given: pass .h5 files or folders written by nbvdata generate")
     infos = []
@@ -204,15 +206,15 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, clouds: str | N
 
     cloud_source = None if clouds is None else load_clouds(paths, clouds, memory_limit_gb)
     nbytes = total * size ** 3 * np.dtype(code_type).itemsize
-    if clouds is None and nbytes <= memory_limit_gb * 2 ** 30:
+    if grids and nbytes <= memory_limit_gb * 2 ** 30:
         codes = np.empty((total, size, size, size), dtype=code_type)
         for path, lut, start, count in zip(paths, luts, offsets, counts):
             if count:
                 with Shard(path) as shard:
                     codes[start:start + count] = lut[shard.file["grids"][()]]
-        grids: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
+        grid_source: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
     else:
-        grids = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
+        grid_source = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
 
     views = infos[0]["views"]
     radius = float(np.linalg.norm(views, axis=1).mean())
@@ -220,7 +222,7 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, clouds: str | N
     has_gains = same_views and all(info["gains"] is not None and info["valid"] is not None for info in infos)
     has_mesh = all(info["mesh_id"] is not None for info in infos)
     return ShardSet(
-        paths=list(paths), grids=grids, palette=palette,
+        paths=list(paths), grids=grid_source, palette=palette,
         targets=np.concatenate([info["targets"] for info in infos]),
         mesh_ids=np.concatenate([info["mesh_id"] for info in infos]) if has_mesh else None,
         gains=np.concatenate([info["gains"] for info in infos]).astype(np.float32) if has_gains else None,

@@ -40,7 +40,7 @@ from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
-from nbvdata.views import Pose, ViewSet, look_at_rotations, sphere_positions
+from nbvdata.views import FIXED_LAYOUTS, Pose, ViewSet, look_at_rotations, sphere_positions
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, scanned_views
 
@@ -199,7 +199,8 @@ class InfoGainScores:
 
 class InfoGainPlanner(Planner):
     """Kriegel et al. 2012 information gain over ``count`` views on the view sphere, laid out like
-    the candidate views (``layout``; see the module docstring).
+    the candidate views (``layout``; see the module docstring; a fixed layout such as
+    ``pc-nbv-33``: its own views, whatever ``count``).
 
     The object's box is the cube of side ``box`` metres around the centre (what the robot is told
     about the object's size, ``mesh.object_size``), not the mesh's own bounds. A voxel is unknown
@@ -213,6 +214,8 @@ class InfoGainPlanner(Planner):
                  count: int = 20, layout: str = "hemisphere", unknown_low: float = 0.5, unknown_high: float = 0.5):
         self.grid, self.min_overlap = grid, min_overlap
         self.unknown = (np.float32(unknown_low), np.float32(unknown_high))
+        if layout in FIXED_LAYOUTS:  # a fixed layout (PC-NBV's 33 views): its own views
+            count = len(FIXED_LAYOUTS[layout]())
         positions = sphere_positions(count, radius, layout)
         self.views = ViewSet(positions, look_at_rotations(positions))
         rays = camera_rays(sensor)  # (N, 3) camera frame

@@ -106,7 +106,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             f"(sha256 {published.sha256[:12]})")
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
     points = architecture(config.model).inputs == "points"
-    data = load_shards(shards, config.memory_limit_gb, clouds=config.model if points else None)
+    data = load_shards(shards, config.memory_limit_gb, clouds=config.model if points else None, grids=not points)
     try:
         taken = _view_states(data, config.model)
         if resumed is None:
