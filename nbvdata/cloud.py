@@ -13,38 +13,69 @@ The generator (``nbvdata.episode``), the closed-loop planners (``nbvtrain.planne
 ``nbvtrain plan`` all build their clouds here, so a network sees the same clouds in closed loop
 as in its training data.
 
-``farthest_points`` is the exact FPS of ``farthest_points_reference`` (the plain O(N M) loop,
-kept for the tests), only faster: the points are bucketed into cells, and a new sample changes
-only the distances of points nearer to it than the largest distance left, so only the cells
-within that reach are visited; a tournament tree over the cells' largest distances gives the
-next sample. Distances are squared, in float64, from the float32 points, with a fixed order of
-operations and no fused multiply-add (numba without fastmath): the same indices on every CPU.
-A cell is skipped only when a lower bound of its points' distances, computed with the same
-operations on its points' own bounding box, is not below the largest distance left; rounding is
-monotone, so the bound never exceeds a point's computed distance and a skipped point's distance
-could not have changed. The two versions give the same indices (tested).
+``farthest_points`` gives exactly the indices of ``farthest_points_reference`` (the plain
+O(N M) loop, kept for the tests), only faster. Each scan's points go into a k-d tree
+(``PointTree``, built once per scan and kept: the generator's cache keeps one per candidate
+view); every node holds its points' bounding box and their largest distance to the samples so
+far, and a new sample visits only the nodes whose box comes nearer to it than that largest
+distance - the others' distances cannot change. The trees' roots give the next sample.
+Distances are squared, in float64, from the float32 points, with a fixed order of operations and
+no fused multiply-add (numba without fastmath): the same indices on every CPU. A node's bound is
+computed with the same operations from its box, and rounding is monotone, so it never exceeds a
+point's computed distance: skipping a node never skips a change. Which tree holds which points
+changes nothing but the speed (tested against the plain loop, index for index).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 
-# Points per leaf of the search tree.
+# Points per leaf of a tree at most.
 _LEAF = 8
+
+
+@dataclass(frozen=True)
+class PointTree:
+    """A k-d tree over the points of one scan, halving the widest side of each node's box.
+
+    placed : (n, 3) float64 the points in leaf order; order : (n,) int64 their index in the scan
+    first, stop : (K,) int64 each node's points are placed[first:stop]
+    child : (K,) int64 a node's first child (the second follows it), -1 for a leaf; node 0 is the root
+    low, high : (K, 3) float64 each node's bounding box
+    """
+
+    placed: np.ndarray
+    order: np.ndarray
+    first: np.ndarray
+    stop: np.ndarray
+    child: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+    @classmethod
+    def build(cls, points: np.ndarray) -> "PointTree":
+        """The tree of ``points`` (n, 3) float32, n >= 1."""
+        return cls(*_build_tree(np.ascontiguousarray(points, dtype=np.float32).astype(np.float64)))
 
 
 class ScannedCloud:
     """The hit points of the scans of one reconstruction, in scan order.
 
-    ``add((H, 3) float32)`` after each scan; ``points()`` is all of them, (M, 3) float32.
+    ``add((H, 3) float32)`` after each scan; ``points()`` is all of them, (M, 3) float32;
+    ``reduce(N)`` the cloud of N of them (``reduce_cloud``), from the scans' trees.
     """
 
     def __init__(self):
         self._scans: list[np.ndarray] = []
+        self._trees: list[PointTree | None] = []
 
-    def add(self, hit_points: np.ndarray) -> None:
+    def add(self, hit_points: np.ndarray, tree: PointTree | None = None) -> None:
+        """Add a scan's hits; ``tree``: their ``PointTree`` if already built (else built when needed)."""
         self._scans.append(np.ascontiguousarray(hit_points, dtype=np.float32).reshape(-1, 3))
+        self._trees.append(tree)
 
     def __len__(self) -> int:
         return sum(len(scan) for scan in self._scans)
@@ -55,9 +86,19 @@ class ScannedCloud:
             return np.zeros((0, 3), dtype=np.float32)
         return np.concatenate(self._scans) if len(self._scans) > 1 else self._scans[0]
 
+    def trees(self) -> list[PointTree]:
+        """The trees of the scans that returned points, in scan order (built now where missing)."""
+        for i, scan in enumerate(self._scans):
+            if self._trees[i] is None and len(scan):
+                self._trees[i] = PointTree.build(scan)
+        return [tree for tree, scan in zip(self._trees, self._scans) if len(scan)]
+
     def reduce(self, count: int) -> tuple[np.ndarray, int]:
         """``reduce_cloud`` of every scanned point."""
-        return reduce_cloud(self.points(), count)
+        points = self.points()
+        if len(points) <= count:
+            return reduce_cloud(points, count)
+        return points[_farthest_points_forest(self.trees(), count)], len(points)
 
 
 def reduce_cloud(points: np.ndarray, count: int) -> tuple[np.ndarray, int]:
@@ -81,96 +122,118 @@ def farthest_points(points: np.ndarray, count: int) -> np.ndarray:
     points = np.ascontiguousarray(points, dtype=np.float32)
     if not 1 <= count <= len(points):
         raise ValueError(f"count={count}: farthest-point sampling picks 1..{len(points)} of these points")
-    return _farthest_points_tree(points.astype(np.float64), count)
+    return _farthest_points_forest([PointTree.build(points)], count)
+
+
+def _farthest_points_forest(trees: list[PointTree], count: int) -> np.ndarray:
+    """FPS over the points of ``trees`` (scans in order: global index = the points of the trees
+    before + the index in its scan), as ``farthest_points``."""
+    sizes = np.array([len(tree.placed) for tree in trees], dtype=np.int64)
+    nodes = np.array([len(tree.child) for tree in trees], dtype=np.int64)
+    point_offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    node_offset = np.concatenate([[0], np.cumsum(nodes)[:-1]])
+    child = np.concatenate([np.where(tree.child >= 0, tree.child + base, -1)
+                            for tree, base in zip(trees, node_offset)])
+    return _farthest_points_trees(
+        np.concatenate([tree.placed for tree in trees]),
+        np.concatenate([tree.order + base for tree, base in zip(trees, point_offset)]),
+        np.concatenate([tree.first + base for tree, base in zip(trees, point_offset)]),
+        np.concatenate([tree.stop + base for tree, base in zip(trees, point_offset)]),
+        child, np.concatenate([tree.low for tree in trees]), np.concatenate([tree.high for tree in trees]),
+        node_offset, count)
 
 
 @numba.njit(cache=True)
-def _split(placed, order, first, stop, axis, rank):
-    """Reorder rows ``first:stop`` of ``placed`` (M, 3) and ``order`` (M,) alike so that row
-    ``rank`` holds the point that would be there sorted by coordinate ``axis``, none after it
-    lower, none before it higher (quickselect with median-of-three pivots: deterministic)."""
-    while stop - first > 2:
-        middle = (first + stop - 1) // 2
-        a, b, c = placed[first, axis], placed[middle, axis], placed[stop - 1, axis]
-        pivot = max(min(a, b), min(max(a, b), c))
-        i, j = first, stop - 1
-        while True:  # Hoare: [first, i) <= pivot <= (j, stop)
-            while placed[i, axis] < pivot:
-                i += 1
-            while placed[j, axis] > pivot:
-                j -= 1
-            if i >= j:
-                break
-            for a in range(3):
-                placed[i, a], placed[j, a] = placed[j, a], placed[i, a]
-            order[i], order[j] = order[j], order[i]
-            i += 1
-            j -= 1
-        if rank <= j:
-            stop = j + 1
-        else:
-            first = j + 1
-    if stop - first == 2 and placed[first, axis] > placed[first + 1, axis]:
-        for a in range(3):
-            placed[first, a], placed[first + 1, a] = placed[first + 1, a], placed[first, a]
-        order[first], order[first + 1] = order[first + 1], order[first]
-
-
-@numba.njit(cache=True)
-def _farthest_points_tree(points, count):
-    """FPS over ``points`` (M, 3) float64 from index 0, ties going to the lowest index: the
-    rule of ``farthest_points_reference``, with a k-d tree of 2^depth leaves of at most
-    ``_LEAF`` points (halved at the median of the widest side). Every node holds its points'
-    bounding box and their farthest point from the samples so far (value, index); a sample
-    visits only the nodes that reach nearer to it than the largest distance left."""
+def _build_tree(points):
+    """The arrays of a ``PointTree`` of ``points`` (n, 3) float64: nodes split at the middle of
+    their box's widest side, down to leaves of at most ``_LEAF`` points (or of one repeated point)."""
     total = points.shape[0]
-    leaves = 1
-    while leaves * _LEAF < total:
-        leaves *= 2
-    first = np.zeros(2 * leaves, dtype=np.int64)
-    stop = np.zeros(2 * leaves, dtype=np.int64)
-    low = np.full((2 * leaves, 3), np.inf)
-    high = np.full((2 * leaves, 3), -np.inf)
+    capacity = 2 * total + 1
+    first = np.zeros(capacity, dtype=np.int64)
+    stop = np.zeros(capacity, dtype=np.int64)
+    child = np.full(capacity, -1, dtype=np.int64)
+    low = np.empty((capacity, 3))
+    high = np.empty((capacity, 3))
     order = np.arange(total)
-    placed = points.copy()  # the points in leaf order, contiguous
-    stop[1] = total
-    for node in range(1, 2 * leaves):
-        for k in range(first[node], stop[node]):
-            for a in range(3):
-                low[node, a] = min(low[node, a], placed[k, a])
-                high[node, a] = max(high[node, a], placed[k, a])
-        if node >= leaves:
+    placed = points.copy()
+    stop[0] = total
+    for a in range(3):
+        low[0, a] = placed[:, a].min()
+        high[0, a] = placed[:, a].max()
+    nodes = 1
+    pending = np.empty(capacity, dtype=np.int64)
+    pending[0], waiting = 0, 1
+    while waiting > 0:
+        waiting -= 1
+        node = pending[waiting]
+        if stop[node] - first[node] <= _LEAF:
             continue
         axis = 0
         for a in (1, 2):
             if high[node, a] - low[node, a] > high[node, axis] - low[node, axis]:
                 axis = a
-        middle = first[node] + (stop[node] - first[node]) // 2
-        _split(placed, order, first[node], stop[node], axis, middle)
-        first[2 * node], stop[2 * node] = first[node], middle
-        first[2 * node + 1], stop[2 * node + 1] = middle, stop[node]
-    value = np.full(2 * leaves, -np.inf)
-    index = np.full(2 * leaves, np.iinfo(np.int64).max)  # the node's farthest point (ties: lowest index)
-    nearest = np.full(total, np.inf)  # squared distance to the nearest sample so far, leaf order
+        middle = low[node, axis] + (high[node, axis] - low[node, axis]) / 2
+        left, right = nodes, nodes + 1
+        for a in range(3):
+            low[left, a], high[left, a], low[right, a], high[right, a] = np.inf, -np.inf, np.inf, -np.inf
+        i, j = first[node], stop[node] - 1
+        while i <= j:  # the points below the middle to the front, the others to the back
+            if placed[i, axis] < middle:
+                side, k = left, i
+                i += 1
+            else:
+                for a in range(3):
+                    placed[i, a], placed[j, a] = placed[j, a], placed[i, a]
+                order[i], order[j] = order[j], order[i]
+                side, k = right, j
+                j -= 1
+            for a in range(3):
+                low[side, a] = min(low[side, a], placed[k, a])
+                high[side, a] = max(high[side, a], placed[k, a])
+        if i == first[node] or i == stop[node]:
+            continue  # no two distinct coordinates to split at: a leaf, however many points
+        first[left], stop[left], first[right], stop[right] = first[node], i, i, stop[node]
+        child[node] = left
+        nodes += 2
+        pending[waiting], pending[waiting + 1] = left, right
+        waiting += 2
+    return (placed, order, first[:nodes].copy(), stop[:nodes].copy(), child[:nodes].copy(), low[:nodes].copy(),
+            high[:nodes].copy())
+
+
+@numba.njit(cache=True)
+def _farthest_points_trees(placed, order, first, stop, child, low, high, roots, count):
+    """FPS from the point of global index 0, ties going to the lowest index (the rule of
+    ``farthest_points_reference``), over trees whose nodes and points are concatenated (``roots``:
+    each tree's root node; ``order``: the global index of each placed point). Every node keeps
+    its points' farthest point from the samples so far (value, index); a sample visits only the
+    nodes whose box comes nearer to it than that value. Returns (count,) int64 global indices."""
+    total, nodes = placed.shape[0], child.shape[0]
+    position = np.empty(total, dtype=np.int64)  # global index -> row of placed
+    for k in range(total):
+        position[order[k]] = k
+    value = np.full(nodes, np.inf)  # before the first sample every point is infinitely far
+    index = np.zeros(nodes, dtype=np.int64)
+    nearest = np.full(total, np.inf)  # squared distance to the nearest sample so far, placed order
     chosen = np.empty(count, dtype=np.int64)
-    stack = np.empty(2 * leaves, dtype=np.int64)
-    visited = np.empty(2 * leaves, dtype=np.int64)
+    stack = np.empty(nodes, dtype=np.int64)
+    visited = np.empty(nodes, dtype=np.int64)
     sample = 0
     for s in range(count):
         chosen[s] = sample
-        x, y, z = points[sample, 0], points[sample, 1], points[sample, 2]
-        reach = np.inf if s == 0 else value[1]  # the largest distance left: only nearer points change
-        top, seen = 1, 0
-        stack[0] = 1
+        row = position[sample]
+        x, y, z = placed[row, 0], placed[row, 1], placed[row, 2]
+        top, seen = roots.shape[0], 0
+        stack[:top] = roots
         while top > 0:
             top -= 1
             node = stack[top]
             gx = max(max(low[node, 0] - x, 0.0), x - high[node, 0])
             gy = max(max(low[node, 1] - y, 0.0), y - high[node, 1])
             gz = max(max(low[node, 2] - z, 0.0), z - high[node, 2])
-            if not gx * gx + gy * gy + gz * gz < reach:
-                continue  # no point of the node is nearer than the largest distance left
-            if node >= leaves:
+            if not gx * gx + gy * gy + gz * gz < value[node]:
+                continue  # the sample is no nearer to any of the node's points than their nearest sample
+            if child[node] < 0:
                 best_value, best_index = -np.inf, np.iinfo(np.int64).max
                 for k in range(first[node], stop[node]):
                     dx = placed[k, 0] - x
@@ -185,16 +248,20 @@ def _farthest_points_tree(points, count):
             else:
                 visited[seen] = node
                 seen += 1
-                stack[top] = 2 * node
-                stack[top + 1] = 2 * node + 1
+                stack[top] = child[node]
+                stack[top + 1] = child[node] + 1
                 top += 2
         for v in range(seen - 1, -1, -1):  # children before parents
             node = visited[v]
-            left, right = 2 * node, 2 * node + 1
+            left, right = child[node], child[node] + 1
             if value[right] > value[left] or (value[right] == value[left] and index[right] < index[left]):
                 left = right
             value[node], index[node] = value[left], index[left]
-        sample = index[1]
+        best = roots[0]
+        for root in roots[1:]:
+            if value[root] > value[best] or (value[root] == value[best] and index[root] < index[best]):
+                best = root
+        sample = index[best]
     return chosen
 
 

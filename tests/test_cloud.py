@@ -66,11 +66,16 @@ def test_fps_of_scanned_clouds_is_the_plain_loops(rng):
     obj = builtin_object("mug", SimConfig().mesh)
     scene = Scene.build(obj, _config("sensor.width=88", "sensor.height=72"), scene_rng(0, obj.mesh_id))
     cloud = ScannedCloud()
-    for view in rng.choice(len(scene.views), 6, replace=False):
+    for number, view in enumerate(rng.choice(len(scene.views), 6, replace=False)):
         cloud.add(scene.scanner.scan(scene.views[int(view)]).hit_points)
+        if number == 2:
+            cloud.add(np.zeros((0, 3), dtype=np.float32))  # a scan that saw nothing
     points = cloud.points()
     assert len(points) > 2000
-    assert np.array_equal(farthest_points(points, 1024), farthest_points_reference(points, 1024))
+    reference = farthest_points_reference(points, 1024)
+    assert np.array_equal(farthest_points(points, 1024), reference)
+    reduced, count = cloud.reduce(1024)  # one tree per scan
+    assert count == len(points) and np.array_equal(reduced, points[reference])
 
 
 def test_fps_spreads_the_points():
