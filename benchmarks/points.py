@@ -47,18 +47,10 @@ def _best(function, repeats: int = 5) -> float:
     return 1e3 * min(times)
 
 
-def _indices(reduced: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-    """The index in ``cloud`` of each reduced point (the first, for repeated points)."""
-    index = {}
-    for i, row in enumerate(cloud):
-        index.setdefault(row.tobytes(), i)
-    return np.array([index[row.tobytes()] for row in reduced])
-
-
 def fps_table(meshes: Path, points: int) -> None:
     import numba
 
-    from nbvdata.cloud import PointTree, ScannedCloud, farthest_points, farthest_points_reference
+    from nbvdata.cloud import ScannedCloud, farthest_points, farthest_points_reference
     from nbvdata.config import SimConfig
     from nbvdata.generate import mesh_sources
     from nbvdata.sensor import MeshScanner
@@ -91,24 +83,22 @@ def fps_table(meshes: Path, points: int) -> None:
     rng = np.random.default_rng(0)
     farthest_points(np.random.default_rng(0).random((100, 3)).astype(np.float32), 10)  # compile
     farthest_points_reference(np.random.default_rng(0).random((100, 3)).astype(np.float32), 10)
-    print(f"\nFarthest-point sampling to {points} points, 1 thread, best of 5 (ms); '=' same indices as the plain loop; "
-          "'state, trees kept': a generator's state, whose scans' trees were built before (ScannedCloud.reduce)")
-    names = ["state, trees kept", "nbvdata.cloud", "plain loop (reference)", *others]
+    print(f"\nFarthest-point sampling to {points} points, 1 thread, best of 5 (ms); '=' same indices as the plain loop")
+    names = ["nbvdata.cloud", "plain loop (reference)", *others]
     print(f"{'mesh':24s} {'scans':>5s} {'points':>7s} " + " ".join(f"{name[:22]:>24s}" for name in names))
     for source in sources[:3]:
         scanner = MeshScanner(source.load(config.mesh).mesh, config.sensor, threads=1)
         cloud = ScannedCloud()
         for k, view in enumerate(rng.choice(len(views), 10, replace=False), start=1):
-            hits = scanner.scan(views[int(view)]).hit_points
-            cloud.add(hits, PointTree.build(hits) if len(hits) else None)
+            cloud.add(scanner.scan(views[int(view)]).hit_points)
             if k not in (1, 3, 6, 10) or len(cloud) < points:
                 continue
             scanned = cloud.points()
             reference = farthest_points_reference(scanned, points)
             cells = []
             for name in names:
-                function = {"nbvdata.cloud": farthest_points, "plain loop (reference)": farthest_points_reference,
-                            "state, trees kept": lambda c, n: _indices(cloud.reduce(n)[0], c)}.get(name) or others[name]
+                function = {"nbvdata.cloud": farthest_points,
+                            "plain loop (reference)": farthest_points_reference}.get(name) or others[name]
                 same = "=" if np.array_equal(np.asarray(function(scanned, points)), reference) else "x"
                 cells.append(f"{_best(lambda: function(scanned, points), 2 if 'plain' in name else 5):22.2f} {same}")
             print(f"{source.stem[:24]:24s} {k:5d} {len(scanned):7d} " + " ".join(cells))

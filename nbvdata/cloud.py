@@ -14,21 +14,20 @@ The generator (``nbvdata.episode``), the closed-loop planners (``nbvtrain.planne
 as in its training data.
 
 ``farthest_points`` gives exactly the indices of ``farthest_points_reference`` (the plain
-O(N M) loop, kept for the tests), only faster. Each scan's points go into a k-d tree
-(``PointTree``, built once per scan and kept: the generator's cache keeps one per candidate
-view); every node holds its points' bounding box and their largest distance to the samples so
-far, and a new sample visits only the nodes whose box comes nearer to it than that largest
-distance - the others' distances cannot change. The trees' roots give the next sample.
-Distances are squared, in float64, from the float32 points, with a fixed order of operations and
-no fused multiply-add (numba without fastmath): the same indices on every CPU. A node's bound is
-computed with the same operations from its box, and rounding is monotone, so it never exceeds a
-point's computed distance: skipping a node never skips a change. Which tree holds which points
-changes nothing but the speed (tested against the plain loop, index for index).
+O(N M) loop, kept for the tests), only faster: the points go into a k-d tree whose every node
+holds its points' bounding box and their largest distance to the samples so far, and a new
+sample visits only the nodes whose box comes nearer to it than that largest distance - the
+others' distances cannot change; the root gives the next sample. Distances are squared, in
+float64, from the float32 points, with a fixed order of operations and no fused multiply-add
+(numba without fastmath): the same indices on every CPU. A node's bound is computed with the
+same operations from its box, and rounding is monotone, so it never exceeds a point's computed
+distance: skipping a node never skips a change. The tree's shape changes nothing but the speed
+(tested against the plain loop, index for index). A tree per scan, kept across a run's states,
+was measured too: no faster (the scans overlap, so every sample visited every scan's tree),
+and the tree of a whole cloud builds in a small part of the sampling's time.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -37,45 +36,18 @@ import numpy as np
 _LEAF = 8
 
 
-@dataclass(frozen=True)
-class PointTree:
-    """A k-d tree over the points of one scan, halving the widest side of each node's box.
-
-    placed : (n, 3) float64 the points in leaf order; order : (n,) int64 their index in the scan
-    first, stop : (K,) int64 each node's points are placed[first:stop]
-    child : (K,) int64 a node's first child (the second follows it), -1 for a leaf; node 0 is the root
-    low, high : (K, 3) float64 each node's bounding box
-    """
-
-    placed: np.ndarray
-    order: np.ndarray
-    first: np.ndarray
-    stop: np.ndarray
-    child: np.ndarray
-    low: np.ndarray
-    high: np.ndarray
-
-    @classmethod
-    def build(cls, points: np.ndarray) -> "PointTree":
-        """The tree of ``points`` (n, 3) float32, n >= 1."""
-        return cls(*_build_tree(np.ascontiguousarray(points, dtype=np.float32).astype(np.float64)))
-
-
 class ScannedCloud:
     """The hit points of the scans of one reconstruction, in scan order.
 
     ``add((H, 3) float32)`` after each scan; ``points()`` is all of them, (M, 3) float32;
-    ``reduce(N)`` the cloud of N of them (``reduce_cloud``), from the scans' trees.
+    ``reduce(N)`` the cloud of N of them (``reduce_cloud``).
     """
 
     def __init__(self):
         self._scans: list[np.ndarray] = []
-        self._trees: list[PointTree | None] = []
 
-    def add(self, hit_points: np.ndarray, tree: PointTree | None = None) -> None:
-        """Add a scan's hits; ``tree``: their ``PointTree`` if already built (else built when needed)."""
+    def add(self, hit_points: np.ndarray) -> None:
         self._scans.append(np.ascontiguousarray(hit_points, dtype=np.float32).reshape(-1, 3))
-        self._trees.append(tree)
 
     def __len__(self) -> int:
         return sum(len(scan) for scan in self._scans)
@@ -86,19 +58,9 @@ class ScannedCloud:
             return np.zeros((0, 3), dtype=np.float32)
         return np.concatenate(self._scans) if len(self._scans) > 1 else self._scans[0]
 
-    def trees(self) -> list[PointTree]:
-        """The trees of the scans that returned points, in scan order (built now where missing)."""
-        for i, scan in enumerate(self._scans):
-            if self._trees[i] is None and len(scan):
-                self._trees[i] = PointTree.build(scan)
-        return [tree for tree, scan in zip(self._trees, self._scans) if len(scan)]
-
     def reduce(self, count: int) -> tuple[np.ndarray, int]:
         """``reduce_cloud`` of every scanned point."""
-        points = self.points()
-        if len(points) <= count:
-            return reduce_cloud(points, count)
-        return points[_farthest_points_forest(self.trees(), count)], len(points)
+        return reduce_cloud(self.points(), count)
 
 
 def reduce_cloud(points: np.ndarray, count: int) -> tuple[np.ndarray, int]:
@@ -122,31 +84,16 @@ def farthest_points(points: np.ndarray, count: int) -> np.ndarray:
     points = np.ascontiguousarray(points, dtype=np.float32)
     if not 1 <= count <= len(points):
         raise ValueError(f"count={count}: farthest-point sampling picks 1..{len(points)} of these points")
-    return _farthest_points_forest([PointTree.build(points)], count)
-
-
-def _farthest_points_forest(trees: list[PointTree], count: int) -> np.ndarray:
-    """FPS over the points of ``trees`` (scans in order: global index = the points of the trees
-    before + the index in its scan), as ``farthest_points``."""
-    sizes = np.array([len(tree.placed) for tree in trees], dtype=np.int64)
-    nodes = np.array([len(tree.child) for tree in trees], dtype=np.int64)
-    point_offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    node_offset = np.concatenate([[0], np.cumsum(nodes)[:-1]])
-    child = np.concatenate([np.where(tree.child >= 0, tree.child + base, -1)
-                            for tree, base in zip(trees, node_offset)])
-    return _farthest_points_trees(
-        np.concatenate([tree.placed for tree in trees]),
-        np.concatenate([tree.order + base for tree, base in zip(trees, point_offset)]),
-        np.concatenate([tree.first + base for tree, base in zip(trees, point_offset)]),
-        np.concatenate([tree.stop + base for tree, base in zip(trees, point_offset)]),
-        child, np.concatenate([tree.low for tree in trees]), np.concatenate([tree.high for tree in trees]),
-        node_offset, count)
+    return _farthest_points_tree(*_build_tree(points.astype(np.float64)), count)
 
 
 @numba.njit(cache=True)
 def _build_tree(points):
-    """The arrays of a ``PointTree`` of ``points`` (n, 3) float64: nodes split at the middle of
-    their box's widest side, down to leaves of at most ``_LEAF`` points (or of one repeated point)."""
+    """A k-d tree of ``points`` (n, 3) float64, nodes split at the middle of their box's widest
+    side down to leaves of at most ``_LEAF`` points (or of one repeated point): placed (n, 3) the
+    points in leaf order, order (n,) their index in ``points``, and per node (node 0 the root)
+    first, stop (its points are placed[first:stop]), child (its first child, the second follows;
+    -1 for a leaf) and low, high (K, 3) its bounding box."""
     total = points.shape[0]
     capacity = 2 * total + 1
     first = np.zeros(capacity, dtype=np.int64)
@@ -202,14 +149,13 @@ def _build_tree(points):
 
 
 @numba.njit(cache=True)
-def _farthest_points_trees(placed, order, first, stop, child, low, high, roots, count):
-    """FPS from the point of global index 0, ties going to the lowest index (the rule of
-    ``farthest_points_reference``), over trees whose nodes and points are concatenated (``roots``:
-    each tree's root node; ``order``: the global index of each placed point). Every node keeps
-    its points' farthest point from the samples so far (value, index); a sample visits only the
-    nodes whose box comes nearer to it than that value. Returns (count,) int64 global indices."""
+def _farthest_points_tree(placed, order, first, stop, child, low, high, count):
+    """FPS from the point of index 0, ties going to the lowest index (the rule of
+    ``farthest_points_reference``), over the tree of ``_build_tree``. Every node keeps its points'
+    farthest point from the samples so far (value, index); a sample visits only the nodes whose box
+    comes nearer to it than that value. Returns (count,) int64 indices."""
     total, nodes = placed.shape[0], child.shape[0]
-    position = np.empty(total, dtype=np.int64)  # global index -> row of placed
+    position = np.empty(total, dtype=np.int64)  # index -> row of placed
     for k in range(total):
         position[order[k]] = k
     value = np.full(nodes, np.inf)  # before the first sample every point is infinitely far
@@ -223,8 +169,8 @@ def _farthest_points_trees(placed, order, first, stop, child, low, high, roots, 
         chosen[s] = sample
         row = position[sample]
         x, y, z = placed[row, 0], placed[row, 1], placed[row, 2]
-        top, seen = roots.shape[0], 0
-        stack[:top] = roots
+        top, seen = 1, 0
+        stack[0] = 0
         while top > 0:
             top -= 1
             node = stack[top]
@@ -257,11 +203,7 @@ def _farthest_points_trees(placed, order, first, stop, child, low, high, roots, 
             if value[right] > value[left] or (value[right] == value[left] and index[right] < index[left]):
                 left = right
             value[node], index[node] = value[left], index[left]
-        best = roots[0]
-        for root in roots[1:]:
-            if value[root] > value[best] or (value[root] == value[best] and index[root] < index[best]):
-                best = root
-        sample = index[best]
+        sample = index[0]
     return chosen
 
 

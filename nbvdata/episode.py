@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nbvdata.cloud import PointTree, ScannedCloud
+from nbvdata.cloud import ScannedCloud
 from nbvdata.grid import OccupancyGrid, ScanUpdate
 from nbvdata.oracle import pack_bits, popcount
 from nbvdata.scene import Scene
@@ -49,14 +49,13 @@ ORACLE, EXPLORE, POLICY, NO_MOVE = 0, 1, 2, -1
 
 
 class ViewCache:
-    """Each candidate view's grid update and, with ``points``, its (H, 3) float32 hit points and
-    their ``PointTree``, computed on the first visit (noise-free scans only)."""
+    """Each candidate view's grid update and, with ``points``, its (H, 3) float32 hit points,
+    computed on the first visit (noise-free scans only)."""
 
     def __init__(self, scene: Scene, points: bool = False):
         self.scene = scene
         self._updates: dict[int, ScanUpdate] = {}
         self._hits: dict[int, np.ndarray] | None = {} if points else None
-        self._trees: dict[int, PointTree | None] = {}
         self._grid = scene.new_grid()  # scratch: only its marking buffers are used
 
     def update(self, view: int) -> ScanUpdate:
@@ -71,13 +70,6 @@ class ViewCache:
         """(H, 3) float32 the view's hit points (a cache made with ``points``)."""
         self.update(view)
         return self._hits[view]
-
-    def point_tree(self, view: int) -> PointTree | None:
-        """The ``PointTree`` of the view's hit points (None when it has none), built once."""
-        if view not in self._trees:
-            hits = self.hit_points(view)
-            self._trees[view] = PointTree.build(hits) if len(hits) else None
-        return self._trees[view]
 
 
 class Reconstruction:
@@ -106,7 +98,7 @@ class Reconstruction:
             self.covered |= self.scene.oracle.visible[view]
             self.scans += 1
             if self.cloud is not None:
-                self.cloud.add(self.cache.hit_points(view), self.cache.point_tree(view))
+                self.cloud.add(self.cache.hit_points(view))
         else:
             self.scan_pose(self.scene.views[view])
 

@@ -61,7 +61,7 @@ class Predictor:
         self.inputs = self.model.inputs
         self._features = _fast_features(self.model, self.device) if self.inputs == "grid" else None
         self.name, self.epoch, self.scene = state["model"], state["epoch"], state.get("scene")
-        self.points = int(state.get("points") or 1024) if self.inputs == "points" else None
+        self.points = int(state["points"]) if self.inputs == "points" else None  # model_from checked it
         self.view_units = state["view_units"].double().numpy() if self.model.task == "scores" else None
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)

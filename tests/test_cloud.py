@@ -74,7 +74,7 @@ def test_fps_of_scanned_clouds_is_the_plain_loops(rng):
     assert len(points) > 2000
     reference = farthest_points_reference(points, 1024)
     assert np.array_equal(farthest_points(points, 1024), reference)
-    reduced, count = cloud.reduce(1024)  # one tree per scan
+    reduced, count = cloud.reduce(1024)
     assert count == len(points) and np.array_equal(reduced, points[reference])
 
 
