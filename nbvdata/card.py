@@ -168,17 +168,18 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
     published = f"- Published on {content['created']} by nbvdata {content['package_version']}{at}."
     if content["source"] != GENERATED:
         return [f"- {config.get('note', content['source'])}", published]
-    views, sensor, grid = config["views"], config["sensor"], config["grid"]
+    views, sensor = config["views"], config["sensor"]
     episode, oracle = config["episode"], config["oracle"]
-    lines = [f"- Simulated by `nbvdata generate`: {plural(views['count'], 'candidate view')} on the "
-             f"{views['layout']} of radius {views['radius']} m; a {sensor['width']}x{sensor['height']} range "
+    layout = LAYOUT_WORDS.get(views["layout"], f"the {views['layout']}")
+    lines = [f"- Simulated by `nbvdata generate`: {plural(views['count'], 'candidate view')} on "
+             f"{layout} of radius {views['radius']} m; a {sensor['width']}x{sensor['height']} range "
              f"sensor (noise {sensor['noise_std']} m); {_grid_words(config)} "
              f"with OctoMap's update rule; {plural(episode['runs_per_mesh'], 'run')} per mesh from seeded random "
              f"start views, at most {plural(episode['max_scans'], 'scan')}, stopping when no view adds "
              f"{100 * episode['min_gain']:g} % of the observable surface; every state labelled by exhaustive "
              f"search over the views that overlap at least {100 * oracle['min_overlap']:g} % of what is already "
              f"covered; global seed {episode['seed']}.",
-             *_moves(episode, oracle, policies),
+             *_moves(episode, oracle, policies), *_clouds(config),
              *([f"- Set-cover labels (`oracle.cover`, docs/setcover.md): every state also holds the fewest candidate "
                 f"views whose scans cover all the observable surface it has not covered (`cover`, SCVP's label), solved "
                 f"by HiGHS within {oracle.get('cover_time_limit', 10.0):g} s of wall time per state; `cover_bound` == "
@@ -207,6 +208,22 @@ def _grid_words(config: dict) -> str:
     return (f"a {grid['size']}^3 occupancy grid fitted to the object (cube = largest side + half a voxel: "
             f"{side:.4g} m, the same for every object, each scaled to a largest side of "
             f"{config['mesh']['object_size']} m)")
+
+
+# How the card names a views.layout (any other: "the <layout>").
+LAYOUT_WORDS = {"pc-nbv-33": "PC-NBV's 33-view layout (`pc-nbv-33`, their y-up directions turned to z-up)",
+                "scvp-32": "SCVP's 32-view layout (`scvp-32`, their directions)"}
+
+
+def _clouds(config: dict) -> list[str]:
+    """The states' point clouds, when the shards hold them (nothing otherwise)."""
+    points = config.get("state", {}).get("points", 0)
+    if not points:
+        return []
+    return [f"- Point clouds (`state.points` {points}): every state holds the points its run had scanned "
+            f"(`points`, object frame), reduced to {points} by farthest-point sampling from the first point "
+            "(fewer: repeated), how many there were (`points_count`), and each shard the mesh's reference "
+            "points (`reference_points`); `nbvdata export --format pc-nbv` writes them in PC-NBV's layout."]
 
 
 def _moves(episode: dict, oracle: dict, policies: set[str]) -> list[str]:

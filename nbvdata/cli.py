@@ -278,12 +278,12 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """Write shards in another project's file format (``--format scvp``: SCVP's training folders)."""
-    from nbvdata.export_scvp import export_scvp
+    """Write shards, or a published version's, in another project's file layout (``nbvdata.export``)."""
+    from nbvdata.export import describe, export
 
-    report = export_scvp(shard_files(args.shards), args.out)
-    print(f"exported {plural(report.states, 'state')} of {plural(report.shards, 'shard')} to {args.out} "
-          f"({args.format}: one folder per state with grid.txt and view_ids.txt, and view_space.txt)")
+    started = time.perf_counter()
+    report = export(args.shards, args.format, args.out, args.root)
+    print(f"{describe(report, args.format)} in {time.perf_counter() - started:.1f} s")
     return 0
 
 
@@ -323,7 +323,8 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def _show_sample(args: argparse.Namespace) -> int:
-    """Render sample ``--index`` of a shard with its NBV (red) and the next best candidates."""
+    """Render sample ``--index`` of a shard with its NBV (red), the next best candidates and, when
+    the shard holds point clouds, the state's cloud."""
     from nbvdata.render import render_state
     from nbvdata.shards import Shard
     from nbvdata.views import ViewSet, look_at_rotations
@@ -340,6 +341,7 @@ def _show_sample(args: argparse.Namespace) -> int:
         gains = shard.read("gains", i) if scored else None
         overlaps = shard.read("overlaps", i) if scored else None
         coverage = shard.read("coverage", i) if shard.has("coverage") else None
+        points = shard.cloud(i) if shard.has("points") else None  # the state's cloud
         config = shard.info.config
         source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
     views = ViewSet(positions, look_at_rotations(positions))
@@ -355,7 +357,7 @@ def _show_sample(args: argparse.Namespace) -> int:
     extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
               or SimConfig().scene_grid.extent)
     out = render_state(probabilities, extent, args.out, views, highlight=nbv,
-                       others=ranked[:args.top], title=title)
+                       others=ranked[:args.top], title=title, points=points)
     print(f"wrote {out}")
     return 0
 
@@ -441,12 +443,16 @@ def build_parser() -> Parser:
                      "published one (a regeneration written by another HDF5 library, say)")
     ver.set_defaults(func=cmd_verify)
 
-    export = sub.add_parser("export", help="write shards in another project's format (scvp: SCVP's folders of "
-                            "grid.txt and view_ids.txt)")
-    export.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
-    export.add_argument("--format", required=True, choices=["scvp"], help="scvp: needs shards generated with "
-                        "oracle.cover true and views.layout scvp-32 (docs/setcover.md)")
-    export.add_argument("--out", type=Path, required=True, help="output folder (new or empty)")
+    export = sub.add_parser("export", help="write shards in another project's file layout (PC-NBV's, SCVP's)")
+    export.add_argument("shards", type=Path, nargs="+", help="shard files or folders, or one published version's "
+                        "manifest (manifests/NAME-X.Y.Z.json: verified first)")
+    export.add_argument("--format", required=True, help="pc-nbv: PC-NBV's per-state viewstate/acc_pc/target_value "
+                        ".npy files, gt.xyz and viewspace.txt (needs shards made with --set state.points=N; "
+                        "docs/pointclouds.md); scvp: SCVP's folders of grid.txt and view_ids.txt (needs "
+                        "--set oracle.cover=true --set views.layout=scvp-32 --set views.count=32; docs/setcover.md)")
+    export.add_argument("--out", type=Path, required=True, help="a new folder to write")
+    export.add_argument("--root", type=Path, help="with a manifest: the folder holding its shards (default: the "
+                        "one it records)")
     export.set_defaults(func=cmd_export)
 
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")

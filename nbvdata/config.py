@@ -41,22 +41,30 @@ class MeshConfig:
         _check(self.object_size > 0, f"mesh.object_size={self.object_size}: must be > 0 metres")
 
 
+# View layouts read from a fixed list of directions (``nbvdata.views.FIXED_LAYOUTS``) and their
+# number of views.
+FIXED_LAYOUT_COUNTS = {"pc-nbv-33": 33, "scvp-32": 32}
+
+
 @dataclass(frozen=True)
 class ViewConfig:
     radius: float = 0.4
     """Radius of the view sphere around the object centre, in metres (the authors' 0.4 m)."""
     count: int = 500
     """Number of candidate views."""
-    layout: Literal["hemisphere", "sphere", "scvp-32"] = "hemisphere"
-    """"hemisphere": z >= 0 only (object on a table, as in the authors' data); "sphere": all round;
-    "scvp-32": SCVP's 32 views (``nbvdata.layout_scvp``), their directions at ``radius``; needs
-    ``count`` 32."""
+    layout: Literal["hemisphere", "sphere", "pc-nbv-33", "scvp-32"] = "hemisphere"
+    """"hemisphere": ``count`` Fibonacci-lattice views with z >= 0 (object on a table, as in the
+    authors' data); "sphere": all round; "pc-nbv-33": PC-NBV's 33 views (``count`` must be 33;
+    ``nbvdata.views.FIXED_LAYOUTS``), turned from their y-up frame to z-up, 8 of them below the
+    equator; "scvp-32": SCVP's 32 views (``nbvdata.layout_scvp``), their directions at ``radius``
+    (``count`` must be 32)."""
 
     def __post_init__(self) -> None:
         _check(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
         _check(self.count >= 1, f"views.count={self.count}: must be >= 1")
-        _check(self.layout != "scvp-32" or self.count == 32,
-               f"views.count={self.count}: views.layout=scvp-32 has 32 views, set views.count=32")
+        fixed = FIXED_LAYOUT_COUNTS.get(self.layout)
+        _check(fixed is None or self.count == fixed,
+               f"views.count={self.count}: views.layout={self.layout} has {fixed} views: set views.count={fixed}")
 
 
 @dataclass(frozen=True)
@@ -190,6 +198,20 @@ class EpisodeConfig:
 
 
 @dataclass(frozen=True)
+class StateConfig:
+    """What a recorded state holds besides the grid and the scores."""
+
+    points: int = 0
+    """Points of each state's partial cloud (``nbvdata.cloud``): every point scanned so far,
+    reduced to this many by farthest-point sampling (fewer are repeated), stored as the shards'
+    ``points``, ``points_count`` and ``reference_points``. 0 = no clouds (the shards of before)."""
+
+    def __post_init__(self) -> None:
+        _check(self.points >= 0, f"state.points={self.points}: must be an integer >= 0 (0 = no point clouds; "
+               "PC-NBV reads 1024)")
+
+
+@dataclass(frozen=True)
 class GenerateConfig:
     """How ``nbvdata generate`` spreads its work. Never changes the generated arrays."""
 
@@ -218,6 +240,7 @@ class SimConfig:
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
     oracle: OracleConfig = field(default_factory=OracleConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    state: StateConfig = field(default_factory=StateConfig)
     generate: GenerateConfig = field(default_factory=GenerateConfig)
 
     @property
@@ -231,19 +254,21 @@ class SimConfig:
 
     def dataset_dict(self) -> dict[str, Any]:
         """The settings that determine the generated data (all but ``generate``); those of
-        ``NEUTRAL_DEFAULTS`` only when they differ from their default."""
+        ``NEUTRAL_DEFAULTS`` only when they differ from their default (a section left empty goes too)."""
         data = to_dict(self)
         del data["generate"]
         for (section, key), default in NEUTRAL_DEFAULTS.items():
             if data[section][key] == default:
                 del data[section][key]
+                if not data[section]:
+                    del data[section]
         return data
 
 
 # Settings added after datasets were published, whose default leaves the data as it was before
 # them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
 # recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
-NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0,
+NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0, ("state", "points"): 0,
                     ("oracle", "cover"): False, ("oracle", "cover_time_limit"): 10.0}
 
 

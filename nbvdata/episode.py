@@ -17,6 +17,11 @@ and with a policy (``nbvdata.policy``) the moves are the policy's, mixed with th
 ``episode.oracle_mix``. The labels stay exact: every state is still scored exhaustively. A
 policy's pose that is no candidate view is scanned live, whatever the sensor.
 
+With ``state.points`` > 0 each recorded state also holds its partial point cloud: every hit the
+run's scans returned so far (range noise included), reduced to that many points by
+farthest-point sampling (``nbvdata.cloud``); a noise-free view's hits are cached with its grid
+update.
+
 Random streams, all from the global seed and the mesh id (``SeedSequence`` spawn keys): 0 the
 reference points, 1 the start views, 2 a run's range noise, 4 a run's moves and its policy
 (3 is left to ``nbvtrain evaluate``).
@@ -30,8 +35,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nbvdata.cloud import ScannedCloud
 from nbvdata.grid import OccupancyGrid, ScanUpdate
-from nbvdata.oracle import pack_bits, popcount
+from nbvdata.oracle import pack_bits
 from nbvdata.scene import Scene
 from nbvdata.setcover import Cover, next_cover
 from nbvdata.views import Pose
@@ -45,18 +51,27 @@ ORACLE, EXPLORE, POLICY, NO_MOVE = 0, 1, 2, -1
 
 
 class ViewCache:
-    """Each candidate view's grid update, computed on the first visit (noise-free scans only)."""
+    """Each candidate view's grid update and, with ``points``, its (H, 3) float32 hit points,
+    computed on the first visit (noise-free scans only)."""
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: Scene, points: bool = False):
         self.scene = scene
         self._updates: dict[int, ScanUpdate] = {}
+        self._hits: dict[int, np.ndarray] | None = {} if points else None
         self._grid = scene.new_grid()  # scratch: only its marking buffers are used
 
     def update(self, view: int) -> ScanUpdate:
         if view not in self._updates:
             scan = self.scene.scanner.scan(self.scene.views[view])
             self._updates[view] = self._grid.scan_update(scan, self.scene.config.sensor.far)
+            if self._hits is not None:
+                self._hits[view] = scan.hit_points
         return self._updates[view]
+
+    def hit_points(self, view: int) -> np.ndarray:
+        """(H, 3) float32 the view's hit points (a cache made with ``points``)."""
+        self.update(view)
+        return self._hits[view]
 
 
 class Reconstruction:
@@ -64,16 +79,19 @@ class Reconstruction:
 
     grid : OccupancyGrid
     covered : (W,) uint64 packed mask of the covered reference points (see ``nbvdata.oracle``)
+    cloud : every scan's hit points (``nbvdata.cloud.ScannedCloud``), or None when not kept
     """
 
-    def __init__(self, scene: Scene, cache: ViewCache | None, rng: np.random.Generator):
-        """``cache`` None scans live (required when the sensor has range noise)."""
+    def __init__(self, scene: Scene, cache: ViewCache | None, rng: np.random.Generator, points: bool = False):
+        """``cache`` None scans live (required when the sensor has range noise); ``points``:
+        keep the scans' hit points (a cache must then have been made with ``points`` too)."""
         self.scene = scene
         self.cache = cache
         self.rng = rng
         self.grid: OccupancyGrid = scene.new_grid()
         self.covered = np.zeros(scene.oracle.visible.shape[1], dtype=np.uint64)
         self.scans = 0
+        self.cloud: ScannedCloud | None = ScannedCloud() if points else None
 
     def scan(self, view: int) -> np.ndarray:
         """Scan from candidate ``view`` and integrate the scan; returns the (W,) packed reference
@@ -84,6 +102,8 @@ class Reconstruction:
         seen = self.scene.oracle.visible[view]
         self.covered |= seen
         self.scans += 1
+        if self.cloud is not None:
+            self.cloud.add(self.cache.hit_points(view))
         return seen
 
     def scan_pose(self, pose: Pose) -> np.ndarray:
@@ -94,9 +114,12 @@ class Reconstruction:
         covered points as ``scan(view)``."""
         scan = self.scene.scanner.scan(pose, self.rng)
         self.scene.integrate(self.grid, scan)
-        seen = pack_bits(self.scene.coverage.covered_by(scan.hit_points))
+        hits = scan.hit_points
+        seen = pack_bits(self.scene.coverage.covered_by(hits))
         self.covered |= seen
         self.scans += 1
+        if self.cloud is not None:
+            self.cloud.add(hits)
         return seen
 
 
@@ -118,6 +141,8 @@ class RunRecord:
     cover_bound: list[int] = field(default_factory=list)
     cover_greedy: list[int] = field(default_factory=list)
     cover_seconds: list[float] = field(default_factory=list)  # not stored: timing, for reports
+    points: list[np.ndarray] = field(default_factory=list)  # with state.points: (N, 3) float32 each
+    points_count: list[int] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.nbv_index)
@@ -204,7 +229,8 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
     oracle = scene.oracle
     mover = mover if mover is not None else Mover()
     record = RunRecord()
-    state = Reconstruction(scene, cache, rng)
+    clouds = config.state.points
+    state = Reconstruction(scene, cache, rng, points=clouds > 0)
     state.scan(start_view)
     last, poses = start_view, [scene.views[start_view]]
     cover = scene.empty_cover() if config.oracle.cover else None
@@ -225,6 +251,10 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
         record.coverage.append((oracle.observable_coverage(state.covered),
                                 oracle.observable_coverage(state.covered | oracle.visible[nbv])))
         record.last_view.append(last)
+        if clouds:
+            points, count = state.cloud.reduce(clouds)
+            record.points.append(points)
+            record.points_count.append(count)
         if state.scans >= config.episode.max_scans:
             record.move.append(NO_MOVE)
             record.next_view.append(-1)

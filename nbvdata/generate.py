@@ -191,6 +191,8 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
             recorded += tuple(sorted(COVER))
             with timer("cover_mesh"):  # the mesh's own cover, which bounds every run's first state
                 scene.empty_cover()
+        if config.state.points:
+            recorded += ("points", "points_count")
         columns: dict[str, list] = defaultdict(list)
         palette = GridPalette()
         for run in range(*unit.runs):
@@ -252,7 +254,7 @@ class SceneCache:
             return self._entries[key]
         obj = source.load(config.mesh)
         scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
-        entry = obj, scene, ViewCache(scene) if config.sensor.noise_std == 0 else None
+        entry = obj, scene, ViewCache(scene, config.state.points > 0) if config.sensor.noise_std == 0 else None
         if self.size is None or self.size > 0:
             self._entries[key] = entry
             while self.size is not None and len(self._entries) > self.size:
@@ -310,7 +312,11 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
         "cover_size": np.asarray(columns["cover_size"], dtype=np.int16),
         "cover_bound": np.asarray(columns["cover_bound"], dtype=np.int16),
         "cover_greedy": np.asarray(columns["cover_greedy"], dtype=np.int16),
-    } if "cover" in columns else {})
+    } if "cover" in columns else {}) | ({
+        "points": np.asarray(columns["points"], dtype=np.float32).reshape(count, scene.config.state.points, 3),
+        "points_count": np.asarray(columns["points_count"], dtype=np.int32),
+        "reference_points": scene.coverage.points.astype(np.float32),
+    } if scene.config.state.points else {})
 
 
 # ---------------------------------------------------------------------------------------------

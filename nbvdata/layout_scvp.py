@@ -46,8 +46,8 @@ SCVP_VIEW_SPACE_32 = np.array([  # (32, 3) x, y, z in metres, their file's rows 
 ])
 
 
-def scvp_positions(radius: float) -> np.ndarray:
-    """(32, 3) float64: SCVP's view directions at ``radius`` metres from the centre (the norm in a
-    fixed order of operations, so the bytes are the same on every CPU)."""
+def scvp_32() -> np.ndarray:
+    """(32, 3) float64 unit directions of SCVP's views, in their order (the norm in a fixed order
+    of operations, so the bytes are the same on every CPU); ``nbvdata.views.FIXED_LAYOUTS``."""
     x, y, z = SCVP_VIEW_SPACE_32.T
-    return SCVP_VIEW_SPACE_32 / np.sqrt(x * x + y * y + z * z)[:, None] * radius
+    return SCVP_VIEW_SPACE_32 / np.sqrt(x * x + y * y + z * z)[:, None]

@@ -1,6 +1,7 @@
 """Headless pictures of a reconstruction state, like the paper's Fig. 1.
 
-Occupied voxels are blue, unknown voxels yellow, candidate views grey dots, and highlighted
+Occupied voxels are blue, unknown voxels yellow, a partial point cloud (if given) black dots,
+candidate views grey dots, and highlighted
 views arrows pointing at the object centre (red for the chosen one, orange for others); a legend
 says so, with the voxel counts. Unknown voxels enclosed by others (the inside of an object,
 which no scan reaches) would show no face: then the quarter of the grid facing the viewer is
@@ -43,13 +44,14 @@ def render_state(
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
     candidates: int | None = None,
+    points: np.ndarray | None = None,
 ) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
     The arguments are those of ``draw_state``.
     """
     return save_cropped(draw_state(probabilities, extent, views, highlight, others, title, labels, views_label,
-                                   candidates), out)
+                                   candidates, points), out)
 
 
 def save_cropped(fig: Figure, out: str | Path) -> Path:
@@ -102,6 +104,7 @@ def draw_state(
     labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
     views_label: str = "candidate views",
     candidates: int | None = None,
+    points: np.ndarray | None = None,
 ) -> Figure:
     """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
@@ -114,6 +117,7 @@ def draw_state(
     candidates : the first ``candidates`` views are the candidate views, drawn as grey dots; the
         others (e.g. a robot's sensor positions) only as arrows (None: all views are candidates).
         The red arrow's legend names its view index only when it is a candidate.
+    points : (P, 3) a partial point cloud in metres, object frame, drawn as black dots
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -144,6 +148,11 @@ def draw_state(
               Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
     if cut:
         legend.append(Patch(facecolor="none", edgecolor="none", label=CUT_AWAY))
+    if points is not None and len(points):
+        ax.computed_zorder = False  # the cloud over the voxels, not hidden among them
+        ax.scatter(*to_grid(points).T, s=2, c="black", depthshade=False, zorder=10)
+        legend.append(Line2D([], [], linestyle="", marker="o", markersize=2, color="black",
+                             label=f"partial cloud ({len(points)} points)"))
     upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
         positions = to_grid(views.positions)

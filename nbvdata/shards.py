@@ -40,6 +40,17 @@ Datasets::
                                          optimal); only with oracle.cover
     cover_greedy   (N,) int16            views in the greedy set cover (most new points first); only with
                                          oracle.cover
+    points         (N, P, 3) float32     the state's partial cloud, object frame, metres: every point its
+                                         run scanned so far (range noise included) reduced to P =
+                                         state.points by farthest-point sampling from the first
+                                         (nbvdata.cloud), repeated from the first when fewer; only with
+                                         state.points > 0
+    points_count   (N,) int32            how many points were scanned before reduction (when at most P,
+                                         the first points_count rows are all of them, in scan order);
+                                         only with state.points > 0
+    reference_points (R, 3) float32      the mesh's coverage reference points (coverage.points of them,
+                                         on the surface): PC-NBV's ground-truth cloud; only with
+                                         state.points > 0
 
 Optional datasets (``OPTIONAL``): ``gains``, ``overlaps``, ``coverage``, ``mesh_id``,
 ``last_view``, ``seed`` and ``view_poses`` may be absent: a shard imported from a dataset that
@@ -61,6 +72,10 @@ Set-cover labels (``COVER``, ``nbvdata.setcover``): a generated shard whose ``co
 ``oracle.cover`` true holds ``cover``, ``cover_size``, ``cover_bound`` and ``cover_greedy``;
 others hold none of them (byte for byte the shards of before). Views already scanned count as
 given and the overlap rule is no part of the cover, as in SCVP.
+
+Point clouds (``CLOUDS``): a shard made with ``state.points`` > 0 holds ``points``,
+``points_count`` and ``reference_points``; with the default 0 none of them, byte for byte the
+shards of before they existed (the ``config`` attribute leaves ``state`` out at its default).
 
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
 determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
@@ -112,13 +127,16 @@ PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
     "cover_size": (np.int16, lambda v, n: ()),
     "cover_bound": (np.int16, lambda v, n: ()),
     "cover_greedy": (np.int16, lambda v, n: ()),
+    "points": (np.float32, lambda v, n, p=1: (p, 3)),
+    "points_count": (np.int32, lambda v, n: ()),
 }
-PER_SHARD = ("grid_palette", "view_positions", "view_poses")
+PER_SHARD = ("grid_palette", "view_positions", "view_poses", "reference_points")
 GENERATED = "nbvdata generate"  # the ``source`` attribute of generated shards: nothing optional
 OPTIONAL = frozenset({"gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"})
 MOVES = frozenset({"move", "next_view", "next_pose"})  # only in runs off the oracle's path
 MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 mean
 COVER = frozenset({"cover", "cover_size", "cover_bound", "cover_greedy"})  # only with oracle.cover
+CLOUDS = frozenset({"points", "points_count", "reference_points"})  # only with state.points > 0
 
 
 class ShardError(ValueError):
@@ -193,11 +211,11 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
     """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
     rename over ``path``.
 
-    ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES`` and ``COVER`` ones may
-    be left out); ``attrs`` every attribute but the version.
+    ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES``, ``COVER`` and ``CLOUDS``
+    ones may be left out); ``attrs`` every attribute but the version.
     """
     path = Path(path)
-    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER)
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER - CLOUDS)
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
@@ -279,6 +297,8 @@ class Shard:
             optional |= MOVES
         if not has_covers(config):
             optional |= COVER
+        if not cloud_points(config):
+            optional |= CLOUDS
         missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file and name not in optional]
         if missing:
             raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
@@ -308,6 +328,13 @@ class Shard:
         one way shard data is read: ShardError naming the shard when its bytes are damaged."""
         with reading(self.path, f"dataset {name}"):
             return self.file[name][index]
+
+    def cloud(self, index: int) -> np.ndarray:
+        """(n, 3) float32: the points sample ``index``'s run had scanned - all of them when there
+        were at most ``state.points`` (``points_count``; none when nothing was scanned), else the
+        ``state.points`` farthest-point sampling kept."""
+        points = self.read("points", index)
+        return points[:min(int(self.read("points_count", index)), len(points))]
 
     @property
     def palette(self) -> np.ndarray:
@@ -359,6 +386,12 @@ def has_covers(config: dict) -> bool:
     return bool(oracle.get("cover", False))
 
 
+def cloud_points(config: dict) -> int:
+    """Points per state's cloud of a shard, from its ``config`` (``state.points``; 0: no clouds)."""
+    state = config.get("state", {}) if isinstance(config, dict) else {}
+    return int(state.get("points", 0)) if isinstance(state, dict) else 0
+
+
 def shard_files(items: list[Path]) -> list[Path]:
     """Shard files from file and folder arguments (a folder contributes its *.h5, sorted)."""
     paths = []
@@ -373,3 +406,32 @@ def shard_files(items: list[Path]) -> list[Path]:
         else:
             raise ShardError(f"{item}: no such shard or folder")
     return paths
+
+
+def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
+    """(N, V) bool: the candidate views each state has scanned.
+
+    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
+    view only); last_view : (N,) int the view scanned last. A run records its states at steps
+    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
+    by a state are the last views of its run's states up to its step. ValueError when a run's
+    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
+    """
+    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
+    if len(last_view) and last_view.min() < 0:
+        raise ValueError("last_view -1: states reached through a pose that is no candidate view (a regression or "
+                         "classification --policy rollout), whose view state is unknown; train score networks on "
+                         "other shards")
+    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
+        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
+    taken = np.zeros((len(run), views), dtype=bool)
+    order = np.lexsort((step, run))
+    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
+    for rows in np.split(order, starts[1:]) if len(order) else []:
+        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
+            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
+                             "the views before a missing state are unknown")
+        scanned = np.zeros((len(rows), views), dtype=bool)
+        scanned[np.arange(len(rows)), last_view[rows]] = True
+        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
+    return taken

@@ -4,7 +4,8 @@ the views. Backs ``nbvdata inspect``; reads everything but the grids.
 Imported shards (no ``mesh_id``) count under one entry per dataset, named by their ``source``
 without its row range; statistics of datasets they lack (gains, overlaps, coverage) show "-".
 Shards whose runs left the oracle's path (``move``: exploration, a policy) add how the runs
-moved and which policy they followed.
+moved and which policy they followed; shards with point clouds (``points_count``) the mean
+number of points scanned by each step.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.shards import MOVE_RULES, Shard, ShardError, ShardInfo
+from nbvdata.shards import MOVE_RULES, Shard, ShardError, ShardInfo, cloud_points
 from nbvdata.text import plural
 
 
@@ -58,6 +59,8 @@ class Summary:
     policies: set[str] = field(default_factory=set)  # JSON ``policy`` attributes
     covers: dict[int, list[np.ndarray]] = field(default_factory=lambda: defaultdict(list))  # step: (k, 3) rows
     # of (cover_size, cover_greedy, proved) of the states at that step
+    cloud_points: set[int] = field(default_factory=set)  # the shards' state.points (those with clouds)
+    scanned_by_step: dict[int, list[int]] = field(default_factory=dict)  # step: [sum of points_count, states]
 
 
 def dataset_name(source: str) -> str:
@@ -81,7 +84,7 @@ def summarise(paths: list[Path]) -> Summary:
 
 
 LABELS = ("view_positions", "run", "step", "nbv_index", "mesh_id", "coverage", "move", "next_view", "gains",
-          "overlaps", "cover_size", "cover_greedy", "cover_bound")
+          "overlaps", "cover_size", "cover_greedy", "cover_bound", "points_count")
 
 
 def _labels(shard: Shard) -> dict:
@@ -95,7 +98,8 @@ def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, vie
          run: np.ndarray, step: np.ndarray, nbv_index: np.ndarray, mesh_id: np.ndarray | None,
          coverage: np.ndarray | None, move: np.ndarray | None, next_view: np.ndarray | None,
          gains: np.ndarray | None, overlaps: np.ndarray | None, cover_size: np.ndarray | None,
-         cover_greedy: np.ndarray | None, cover_bound: np.ndarray | None) -> None:
+         cover_greedy: np.ndarray | None, cover_bound: np.ndarray | None,
+         points_count: np.ndarray | None) -> None:
     """Count one shard's labels (``_labels``) into ``summary``."""
     summary.shards += 1
     summary.samples += info.samples
@@ -128,6 +132,12 @@ def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, vie
             at = step == value
             summary.covers[int(value)].append(np.stack([cover_size[at], cover_greedy[at],
                                                         cover_bound[at] == cover_size[at]], axis=1))
+    if points_count is not None:
+        summary.cloud_points.add(cloud_points(info.config))
+        for value, count in zip(step.tolist(), points_count.tolist()):
+            total = summary.scanned_by_step.setdefault(value, [0, 0])
+            total[0] += count
+            total[1] += 1
     runs_of = defaultdict(list)
     for i, (mesh, number) in enumerate(zip(mesh_ids, run)):
         runs_of[(mesh, int(number))].append(i)
@@ -169,6 +179,7 @@ def format_summary(summary: Summary, top: int = 10) -> str:
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
     lines += _moves(summary)
     lines += format_covers(summary.covers)
+    lines += _clouds(summary)
     for problem in summary.problems:
         lines.append(f"unreadable: {problem}")
     return "\n".join(lines)
@@ -210,6 +221,15 @@ def format_covers(covers: dict[int, list[np.ndarray]], seconds: dict[int, list[f
     if not seconds:
         lines.append("(seconds per label are measured where the labels are made: nbvdata generate prints them)")
     return lines
+
+
+def _clouds(summary: Summary) -> list[str]:
+    """Points scanned per state by step, when the shards hold point clouds (nothing otherwise)."""
+    if not summary.scanned_by_step:
+        return []
+    sizes = ", ".join(str(size) for size in sorted(summary.cloud_points))
+    means = ", ".join(f"{step}: {total / states:,.0f}" for step, (total, states) in sorted(summary.scanned_by_step.items()))
+    return [f"point clouds: {sizes} points per state (farthest-point sampled); points scanned, mean by step: {means}"]
 
 
 def _median(parts: list[np.ndarray], spec: str) -> str:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nbvdata.config import ViewConfig
+from nbvdata.layout_scvp import scvp_32
 from nbvdata.text import plural
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -115,20 +116,51 @@ class Pose:
 
 
 def sphere_positions(count: int, radius: float, layout: str = "hemisphere") -> np.ndarray:
-    """(count, 3) evenly spread points on a sphere (Fibonacci lattice), deterministic.
+    """(count, 3) evenly spread points on a sphere (Fibonacci lattice), deterministic; for a
+    layout of ``FIXED_LAYOUTS`` its directions (``count`` must be theirs) times ``radius``.
 
     "hemisphere" keeps z >= 0; points are equal-area in z, so spacing is uniform.
     """
+    if layout in FIXED_LAYOUTS:
+        directions = FIXED_LAYOUTS[layout]()
+        if count != len(directions):
+            raise ValueError(f"layout={layout!r} has {len(directions)} views, not {count}")
+        return radius * directions
     i = np.arange(count, dtype=np.float64)
     if layout == "hemisphere":
         z = (i + 0.5) / count
     elif layout == "sphere":
         z = 1.0 - (2.0 * i + 1.0) / count
     else:
-        raise ValueError(f"layout={layout!r}: must be 'hemisphere' or 'sphere'")
+        raise ValueError(f"layout={layout!r}: must be 'hemisphere', 'sphere' or one of {', '.join(FIXED_LAYOUTS)}")
     ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
     phi = i * _GOLDEN_ANGLE
     return radius * np.stack([ring * _cos(phi), ring * _sin(phi), z], axis=1)
+
+
+# A y-up direction (x, y, z) turned to z-up: +90 degrees about x, (x, y, z) -> (x, -z, y). A proper
+# rotation (determinant +1, no mirror), the one ``mesh.up_axis: y`` applies to y-up mesh files, so
+# a y-up model and y-up views keep the relation they had.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def pc_nbv_33() -> np.ndarray:
+    """(33, 3) float64 unit directions of PC-NBV's 33 candidate views (Zeng et al. 2020, their
+    ``viewspace_shapenet_33.txt``), turned from their y-up frame to z-up (``Y_UP_TO_Z_UP``).
+
+    In their frame, in their order: the pole (0, 1, 0), then rings at 30, 60, 90 and 120 degrees
+    from +y, 8 views each at azimuths 0, 45, ..., 315 degrees measured from +z towards +x:
+    (sin t sin a, cos t, sin t cos a). Turned to z-up: the top view (0, 0, 1), 24 views at or
+    above the equator and the last 8 at 30 degrees below it (elevation -30)."""
+    tilt = np.radians(np.repeat([30.0, 60.0, 90.0, 120.0], 8))
+    azimuth = np.radians(np.tile(np.arange(8) * 45.0, 4))
+    ring = _sin(tilt)
+    y_up = np.concatenate([[[0.0, 1.0, 0.0]], np.stack([ring * _sin(azimuth), _cos(tilt), ring * _cos(azimuth)],
+                                                        axis=1)])
+    return y_up @ Y_UP_TO_Z_UP.T
+
+
+FIXED_LAYOUTS = {"pc-nbv-33": pc_nbv_33, "scvp-32": scvp_32}  # views.layout -> () -> (V, 3) unit directions
 
 
 @dataclass(frozen=True)
@@ -160,12 +192,7 @@ class ViewSet:
 
 def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
     """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""
-    if config.layout == "scvp-32":
-        from nbvdata.layout_scvp import scvp_positions
-
-        positions = scvp_positions(config.radius)
-    else:
-        positions = sphere_positions(config.count, config.radius, config.layout)
+    positions = sphere_positions(config.count, config.radius, config.layout)
     return ViewSet(positions, look_at_rotations(positions))
 
 

@@ -4,7 +4,8 @@ A checkpoint is a dict of plain data: ``model`` (registry name), ``task``, ``epo
 ``config`` (the TrainConfig as a dict), ``view_radius``, ``scene`` (``nbvtrain.scene``: the
 grid and views of its shards, None when unknown), ``state_dict`` and ``optimizer`` (tensors,
 numbers, lists), ``history`` (one dict of numbers per epoch) and ``target``; a score network's
-also ``view_units`` ((V, 3) float64 tensor: the candidate views it scores, unit directions).
+also ``view_units`` ((V, 3) float64 tensor: the candidate views it scores, unit directions), a
+point network's (``nbvscore-pc``) ``points`` (the size of the clouds it was trained on).
 
 Every checkpoint is read here, with ``torch.load(weights_only=True)``: a file that carries
 pickled Python objects is refused, so no code from it runs. Anything that is not a checkpoint
@@ -167,6 +168,9 @@ def model_from(state: dict, path: Path, fix: str = USE_FIT) -> NBVNet | ScoreNet
             raise CheckpointError(f"{path}: not an nbvtrain checkpoint (a score network without its (V, 3) "
                                   f"view_units); {fix}")
         views = units.double().numpy()
+    if MODELS[state["model"]].inputs == "points" and (not isinstance(state.get("points"), int) or state["points"] < 1):
+        raise CheckpointError(f"{path}: not an nbvtrain checkpoint (a point network without the size of its clouds, "
+                              f"points); {fix}")
     try:
         model = build_model(state["model"], config.get("dropout_from", "conv3"), config.get("dropout", 0.5),
                             views=views)

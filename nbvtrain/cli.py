@@ -73,7 +73,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     checkpoint = args.checkpoint or released_checkpoint("scores")
     predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius, tta=args.tta)
     taken = None
-    if args.grid.suffix == ".npy":
+    if predictor.inputs == "points":
+        grid, source, taken = _cloud_input(args, predictor)
+    elif args.grid.suffix == ".npy":
         try:
             grid, source = read_npy(args.grid), str(args.grid)
         except NpyError as error:
@@ -101,6 +103,29 @@ def cmd_predict(args: argparse.Namespace) -> int:
                   for index, prediction in enumerate(predictions)]
     print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
+
+
+def _cloud_input(args: argparse.Namespace, predictor) -> tuple[np.ndarray, str, np.ndarray | None]:
+    """(cloud (M, 3), source, view state or None) for a point network: a cloud file (.npy, .ply,
+    .pcd, .xyz: every scanned point, object frame, metres) or a shard sample's stored cloud and view
+    state. ShardError for a shard without clouds, SensorDataError for a bad cloud file."""
+    if args.grid.suffix not in (".h5", ".hdf5"):
+        from nbvtrain.sensordata import read_cloud
+
+        return read_cloud(args.grid), str(args.grid), None
+    with Shard(args.grid) as shard:
+        if not 0 <= args.index < len(shard):
+            raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
+        if not shard.has("points"):
+            raise ShardError(f"{args.grid}: holds no point clouds, which {predictor.name} reads: give a cloud file "
+                             "(.npy, .ply, .pcd, .xyz) or a shard made with --set state.points=N")
+        cloud = shard.cloud(args.index)
+        if not len(cloud):  # nothing scanned: the stored cloud is zeros, what the network was given
+            cloud = np.zeros((1, 3), dtype=np.float32)
+        from nbvdata.shards import view_state
+
+        states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
+        return cloud, f"{args.grid}[{args.index}]", states[args.index]
 
 
 def _scanned(text: str, predictor) -> np.ndarray:
@@ -318,9 +343,11 @@ def build_parser() -> Parser:
                      help="show a progress bar (default: on a terminal)")
     fit.set_defaults(func=cmd_fit)
 
-    predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid, as JSON")
+    predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid or cloud, as JSON")
     predict.add_argument("grid", type=Path, help="a .npy of one (32, 32, 32) grid or of (B, 32, 32, 32) grids "
-                         "(probabilities, 0.5 = unknown; B grids print a JSON list of B answers), or a shard")
+                         "(probabilities, 0.5 = unknown; B grids print a JSON list of B answers), or a shard; for a "
+                         "point network (nbvscore-pc) a cloud (.npy (M, 3), .ply, .pcd, .xyz: every scanned point, "
+                         "object frame, metres) or a shard made with state.points")
     predict.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard (default 0)")
     predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
                          f"released score network, {released['scores']})")

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from nbvdata.manifest import Published, mesh_split, random_split
-from nbvdata.shards import Shard, ShardError
+from nbvdata.shards import Shard, ShardError, view_state  # noqa: F401 (view_state: public here too)
 from nbvdata.text import plural
 from nbvtrain.scene import mixed_scene_record, scene_difference, scene_record_of
 
@@ -31,6 +31,69 @@ class InMemoryGrids:
 
     def close(self) -> None:
         pass
+
+
+class InMemoryClouds:
+    """(N, P, 3) float32 partial clouds held in one array."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        self.size = points.shape[1]  # points per cloud
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        """(B,) sample indices -> (B, P, 3) float32 points."""
+        return self.points[indices]
+
+    def close(self) -> None:
+        pass
+
+
+class LazyClouds:
+    """Clouds read from the shards at each request (for datasets larger than memory)."""
+
+    def __init__(self, paths: list[Path], offsets: np.ndarray, size: int):
+        self.shards = [Shard(path) for path in paths]
+        self.offsets, self.size = offsets, size  # size: points per cloud
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        indices = np.asarray(indices)
+        out = np.empty((len(indices), self.size, 3), dtype=np.float32)
+        which = np.searchsorted(self.offsets, indices, side="right") - 1
+        for s in np.unique(which):
+            mine = np.flatnonzero(which == s)
+            rows = indices[mine] - self.offsets[s]
+            unique_rows, inverse = np.unique(rows, return_inverse=True)  # h5py wants increasing rows
+            out[mine] = self.shards[s].read("points", unique_rows)[inverse]
+        return out
+
+    def close(self) -> None:
+        for shard in self.shards:
+            shard.close()
+
+
+def load_clouds(paths: list[Path], model: str, memory_limit_gb: float = 8.0) -> InMemoryClouds | LazyClouds:
+    """The partial clouds (``points``) of every sample of ``paths``, in memory when they take at
+    most ``memory_limit_gb``; ShardError naming the shard when one holds none (a point network
+    ``model`` reads them) or the shards' clouds differ in size."""
+    counts, sizes = [], set()
+    for path in paths:
+        with Shard(path) as shard:
+            if not shard.has("points"):
+                raise ShardError(f"{path}: holds no point clouds, which {model} reads: generate the shards with "
+                                 "--set state.points=1024 (or train a grid network)")
+            counts.append(len(shard))
+            sizes.add(shard.file["points"].shape[1])
+    if len(sizes) > 1:
+        raise ShardError(f"the shards hold clouds of different sizes {sorted(sizes)}: train on one kind at a time")
+    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    size = sizes.pop()
+    if sum(counts) * size * 12 > memory_limit_gb * 2 ** 30:
+        return LazyClouds(list(paths), offsets, size)
+    parts = []
+    for path in paths:
+        with Shard(path) as shard:
+            parts.append(shard["points"])
+    return InMemoryClouds(np.concatenate(parts))
 
 
 class LazyGrids:
@@ -74,6 +137,8 @@ class ShardSet:
     scene        : the grid and view settings the shards were made with (``nbvtrain.scene.scene_record``),
                    None when a shard records none (imported data), ``mixed_scene_record`` when they
                    were made in several scenes (``load_shards(mixed_scenes=True)``)
+    clouds       : the partial clouds (``load_clouds``: ``take(indices)`` -> (B, P, 3)), or None when
+                   not asked for
     """
 
     paths: list[Path]
@@ -87,18 +152,31 @@ class ShardSet:
     view_radius: float
     grid_size: int
     scene: dict | None = None
+    clouds: InMemoryClouds | LazyClouds | None = None
 
     def __len__(self) -> int:
         return len(self.targets)
 
+    @property
+    def cloud_points(self) -> int | None:
+        """Points per cloud (the shards' ``state.points``), None without clouds."""
+        return None if self.clouds is None else int(self.clouds.size)
+
     def close(self) -> None:
         self.grids.close()
+        if self.clouds is not None:
+            self.clouds.close()
 
 
-def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: bool = False) -> ShardSet:
+def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: bool = False,
+                clouds: str | None = None, grids: bool = True) -> ShardSet:
     """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard, or
     two shards made in different scenes (``nbvtrain.scene.scene_difference``) unless
-    ``mixed_scenes``."""
+    ``mixed_scenes``.
+
+    ``clouds``: what reads the shards' partial clouds (a point network's name, for messages): they
+    are loaded too (``load_clouds``). ``grids`` False: the grids are not wanted, left on disk
+    (read lazily if at all)."""
     if not paths:
         raise ShardError("no shards given: pass .h5 files or folders written by nbvdata generate")
     infos = []
@@ -137,16 +215,17 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: b
     if total == 0:
         raise ShardError(f"no samples in the {plural(len(paths), 'shard')} given: generate more runs or other meshes")
 
+    cloud_source = None if clouds is None else load_clouds(paths, clouds, memory_limit_gb)
     nbytes = total * size ** 3 * np.dtype(code_type).itemsize
-    if nbytes <= memory_limit_gb * 2 ** 30:
+    if grids and nbytes <= memory_limit_gb * 2 ** 30:
         codes = np.empty((total, size, size, size), dtype=code_type)
         for path, lut, start, count in zip(paths, luts, offsets, counts):
             if count:
                 with Shard(path) as shard:
                     codes[start:start + count] = lut[shard.codes()]
-        grids: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
+        grid_source: InMemoryGrids | LazyGrids = InMemoryGrids(codes)
     else:
-        grids = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
+        grid_source = LazyGrids(list(paths), offsets, luts, np.dtype(code_type))
 
     views = infos[0]["views"]
     radius = float(np.linalg.norm(views, axis=1).mean())
@@ -154,14 +233,15 @@ def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: b
     has_gains = same_views and all(info["gains"] is not None and info["valid"] is not None for info in infos)
     has_mesh = all(info["mesh_id"] is not None for info in infos)
     return ShardSet(
-        paths=list(paths), grids=grids, palette=palette,
+        paths=list(paths), grids=grid_source, palette=palette,
         targets=np.concatenate([info["targets"] for info in infos]),
         mesh_ids=np.concatenate([info["mesh_id"] for info in infos]) if has_mesh else None,
         gains=np.concatenate([info["gains"] for info in infos]).astype(np.float32) if has_gains else None,
         valid=np.concatenate([info["valid"] for info in infos]) if has_gains else None,
         view_units=views / np.linalg.norm(views, axis=1, keepdims=True) if has_gains else None,
         view_radius=radius, grid_size=size,
-        scene=mixed_scene_record([info["scene"] for info in infos]) if scenes_differ else infos[0]["scene"])
+        scene=mixed_scene_record([info["scene"] for info in infos]) if scenes_differ else infos[0]["scene"],
+        clouds=cloud_source)
 
 
 def _valid_views(shard: Shard) -> np.ndarray | None:
@@ -170,35 +250,6 @@ def _valid_views(shard: Shard) -> np.ndarray | None:
     if not shard.has("overlaps") or min_overlap is None:
         return None
     return shard["overlaps"].astype(np.float64) >= float(min_overlap)
-
-
-def view_state(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, views: int) -> np.ndarray:
-    """(N, V) bool: the candidate views each state has scanned.
-
-    run : (N,) a key per run (its states share it); step : (N,) int scans taken (1 = the start
-    view only); last_view : (N,) int the view scanned last. A run records its states at steps
-    1, 2, ... S and each state's last view is the one scanned to reach it, so the views scanned
-    by a state are the last views of its run's states up to its step. ValueError when a run's
-    steps are not 1..S (a state missing: its views are unknown) or a view is out of range.
-    """
-    run, step, last_view = np.asarray(run), np.asarray(step), np.asarray(last_view)
-    if len(last_view) and last_view.min() < 0:
-        raise ValueError("last_view -1: states reached through a pose that is no candidate view (a regression or "
-                         "classification --policy rollout), whose view state is unknown; train score networks on "
-                         "other shards")
-    if len(last_view) and not 0 <= last_view.min() <= last_view.max() < views:
-        raise ValueError(f"last_view holds views {last_view.min()}..{last_view.max()}, outside 0..{views - 1}")
-    taken = np.zeros((len(run), views), dtype=bool)
-    order = np.lexsort((step, run))
-    starts = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
-    for rows in np.split(order, starts[1:]) if len(order) else []:
-        if not np.array_equal(step[rows], np.arange(1, len(rows) + 1)):
-            raise ValueError(f"run {run[rows[0]]} has states at steps {step[rows].tolist()}, not 1..{len(rows)}: "
-                             "the views before a missing state are unknown")
-        scanned = np.zeros((len(rows), views), dtype=bool)
-        scanned[np.arange(len(rows)), last_view[rows]] = True
-        taken[rows] = np.logical_or.accumulate(scanned, axis=0)
-    return taken
 
 
 def load_view_states(paths: list[Path]) -> np.ndarray:

@@ -9,6 +9,10 @@ Each item is a dict (the default collate stacks them into a batch)::
     gains     (V,) float32           with scores=True: every candidate view's gain (``nbvdata.oracle``)
     overlaps  (V,) float32           with scores=True: every candidate view's overlap
     taken     (V,) bool              with view_state=True: the candidate views scanned so far
+    points    (P, 3) float32         with points=True: the state's partial cloud, object frame, metres
+                                     (shards made with state.points = P; ``nbvdata.cloud``)
+    points_count int                 with points=True: how many points were scanned (<= P: the first
+                                     points_count rows are all of them)
 
 Samples are read exactly as ``nbvtrain fit`` reads them (``nbvtrain.data.load_shards``: one
 merged palette, the same global indices, a published version's split parts), so a model trained
@@ -28,7 +32,7 @@ import torch
 
 from nbvdata.manifest import Published, open_verified
 from nbvdata.shards import Shard, ShardError, shard_files
-from nbvtrain.data import LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
+from nbvtrain.data import LazyClouds, LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
 
 
 class NBVDataset(torch.utils.data.Dataset):
@@ -42,7 +46,7 @@ class NBVDataset(torch.utils.data.Dataset):
 
     def __init__(self, source: str | Path | Sequence[str | Path], part: str | None = None, split: str = "random",
                  root: str | Path | None = None, scores: bool = False, view_state: bool = False,
-                 memory_limit_gb: float = 8.0, mixed_scenes: bool = False):
+                 memory_limit_gb: float = 8.0, mixed_scenes: bool = False, points: bool = False):
         sources = [Path(source)] if isinstance(source, (str, Path)) else [Path(s) for s in source]
         published: Published | None = None
         if len(sources) == 1 and sources[0].suffix == ".json":
@@ -53,7 +57,7 @@ class NBVDataset(torch.utils.data.Dataset):
                 raise ShardError(f"part={part!r} needs a published manifest (NAME-X.Y.Z.json); on shards, take "
                                  "indices from nbvtrain.data.split_indices and wrap in torch.utils.data.Subset")
             paths = shard_files(sources)
-        data = load_shards(paths, memory_limit_gb, mixed_scenes)
+        data = load_shards(paths, memory_limit_gb, mixed_scenes, clouds="NBVDataset(points=True)" if points else None)
         self.paths, self.palette, self.targets = list(paths), data.palette, data.targets
         if part is None:
             self.indices = np.arange(len(data))
@@ -62,7 +66,14 @@ class NBVDataset(torch.utils.data.Dataset):
             if part not in parts:
                 raise ShardError(f"part={part!r}: {published.label}'s {split} split has {', '.join(parts)}")
             self.indices = parts[part]
-        self.gains = self.overlaps = self.taken = None
+        self.gains = self.overlaps = self.taken = self.points_count = None
+        self._clouds = None
+        if points:
+            self.points_count = self._column("points_count", np.int64, "points")
+            self._clouds = data.clouds
+            if isinstance(data.clouds, LazyClouds):  # each worker process opens its own
+                self._clouds = ([shard.path for shard in data.clouds.shards], data.clouds.offsets)
+                data.clouds.close()
         if scores:
             if data.gains is None:
                 raise ShardError("scores=True: these shards do not all hold gains for one common set of views "
@@ -91,16 +102,28 @@ class NBVDataset(torch.utils.data.Dataset):
             sample["overlaps"] = torch.from_numpy(self.overlaps[index].copy())
         if self.taken is not None:
             sample["taken"] = torch.from_numpy(self.taken[index].copy())
+        if self.points_count is not None:
+            sample["points"] = torch.from_numpy(self._cloud_source().take(np.array([index]))[0])
+            sample["points_count"] = int(self.points_count[index])
         return sample
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         if self._lazy is not None:
             state["_grids"], state["_pid"] = None, None
+        if isinstance(self._clouds, LazyClouds):
+            state["_clouds"] = ([shard.path for shard in self._clouds.shards], self._clouds.offsets)
         return state
+
+    def _cloud_source(self):
+        if isinstance(self._clouds, tuple):  # a lazy dataset's clouds, opened in this process
+            self._clouds = LazyClouds(*self._clouds)
+        return self._clouds
 
     def close(self) -> None:
         """Close the shards a lazy dataset opened in this process."""
+        if isinstance(self._clouds, LazyClouds):
+            self._clouds.close()
         if self._grids is not None:
             self._grids.close()
             if self._lazy is not None:

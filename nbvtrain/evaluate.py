@@ -131,16 +131,18 @@ def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
     """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
     seconds, the pose position, its overlap and the number of valid candidate views before it
-    (None for the start). Only a privileged planner sees the ``Reconstruction``."""
+    (None for the start). Only a privileged planner sees the ``Reconstruction``; one that reads
+    points gets every point scanned so far (``nbvdata.cloud``, kept as the generator keeps them)."""
     noise, choices = np.random.SeedSequence(seed).spawn(2)
     planner.start(choices)
-    state = Reconstruction(scene, None, np.random.default_rng(noise))
+    state = Reconstruction(scene, None, np.random.default_rng(noise), points=planner.reads_points)
     min_overlap = scene.config.oracle.min_overlap
     pose, seconds, pose_overlap, valid_views = scene.views[first_view], 0.0, None, None
     poses, rows = [], []
     for scan in range(1, scans + 1):
         if scan > 1:
-            observation = Observation(state.grid.probabilities(), tuple(poses))
+            observation = Observation(state.grid.probabilities(), tuple(poses),
+                                      state.cloud.points() if state.cloud is not None else None)
             started = time.perf_counter()
             pose = planner.next_pose(observation, state if planner.privileged else None)
             seconds = time.perf_counter() - started

@@ -5,6 +5,8 @@ The NBV-nets map a batch of occupancy grids (B, 1, 32, 32, 32), float32 probabil
 (B, 3) unit-ish NBV positions (regression, tanh output) or (B, 14) logits (classification).
 A score network maps grids and the view state (B, V) bool (which of the V candidate views
 were scanned) to (B, V) scores, one per candidate view (task ``scores``; ``ScoreNet``).
+``nbvscore-pc`` does the same from the state's partial point cloud (B, N, 3) instead of the grid
+(``PointScoreNet``, after PC-NBV; its ``inputs`` are "points").
 
 Convolutions are kernel 3, **stride 1, padding 1**, each followed by ReLU; a 2x max-pool follows
 each of the first three (32 -> 16 -> 8 -> 4). The paper writes stride 2, but that cannot run on
@@ -32,13 +34,16 @@ GRID_SIZE = 32
 
 @dataclass(frozen=True)
 class Architecture:
-    """convs: filters per convolution; fcs: hidden fully connected widths; outputs: 3, 14, or
-    0 = one per candidate view (a score network, whose convolutions have stride 2, no pooling)."""
+    """convs: filters per convolution (for a point network: widths of the MLP shared by every
+    point); fcs: hidden fully connected widths; outputs: 3, 14, or 0 = one per candidate view (a
+    score network, whose convolutions have stride 2, no pooling); inputs: "grid" (B, 1, 32, 32,
+    32) probabilities or "points" (B, N, 3) partial clouds in the object frame, metres."""
 
     convs: tuple[int, ...]
     fcs: tuple[int, ...]
     outputs: int
     description: str
+    inputs: str = "grid"
 
     @property
     def task(self) -> str:
@@ -69,6 +74,11 @@ MODELS: dict[str, Architecture] = {
     # joined as V inputs (the ablation's first design: it learns each view apart).
     "nbvscore-fc3": Architecture((16, 32, 64), (512, 512), 0,
                                  "C(16)/2 C(32)/2 C(64)/2, FC(512), [., view state] FC(512) FC(V) scores"),
+    # nbvscore-pc: PC-NBV's kind of input, the partial cloud: a PointNet encoder (an MLP shared by
+    # every point, max-pooled over the points) joined with the view state, one output per view.
+    "nbvscore-pc": Architecture((64, 128, 256), (512, 256), 0,
+                                "per point MLP(64, 128, 256), max pool; [., view state] FC(512) FC(256) FC(V) scores",
+                                inputs="points"),
 }
 POOLED = 3  # the first three convolutions are followed by a 2x max-pool
 
@@ -87,6 +97,8 @@ def architecture(name: str) -> Architecture:
 
 class NBVNet(nn.Module):
     """(B, 1, 32, 32, 32) grids -> (B, 3) tanh positions or (B, 14) logits."""
+
+    inputs = "grid"
 
     def __init__(self, name: str, dropout_from: str = "conv3", dropout: float = 0.5):
         super().__init__()
@@ -156,6 +168,7 @@ class ScoreNet(nn.Module):
     """
 
     turns = False  # its views are outputs, not inputs: the quarter-turn augmentation cannot apply
+    inputs = "grid"
 
     def __init__(self, name: str, units: np.ndarray, dropout_from: str = "fc1", dropout: float = 0.5):
         super().__init__()
@@ -262,11 +275,55 @@ def quarter_turns(vectors: np.ndarray, turns: int) -> np.ndarray:
     return np.stack([c * x - s * y, s * x + c * y, vectors[:, 2]], axis=1)
 
 
-SCORE_NETS = {"nbvscore-3": ViewScoreNet, "nbvscore-fc3": ScoreNet}
+class PointScoreNet(nn.Module):
+    """``nbvscore-pc``: (B, N, 3) partial clouds (object frame, metres) and (B, V) view states ->
+    (B, V) candidate-view scores.
+
+    The points are scaled by ``point_scale`` (a saved buffer: 1 / the training views' radius,
+    set by ``nbvtrain fit``; 1 until then), each goes through the same MLP (``convs`` widths,
+    ReLU), the features are max-pooled over the points - so the scores do not depend on the
+    points' order - and joined with the view state for FCs (``fcs``) to one score per view.
+    ``encode`` is the pooled cloud feature, ``head(features, taken)`` the scores (as ``ScoreNet``).
+    """
+
+    turns = False  # its views are outputs: no quarter-turn augmentation
+
+    def __init__(self, name: str, units: np.ndarray, dropout_from: str = "fc1", dropout: float = 0.5):
+        super().__init__()
+        arch = architecture(name)
+        start = dropout_start_index(dropout_from, layer_names(name))
+        self.name, self.task, self.inputs, self.views = name, arch.task, arch.inputs, len(units)
+        self.register_buffer("point_scale", torch.ones(()))
+        layers: list[nn.Module] = []
+        width = 3
+        for i, units_out in enumerate(arch.convs):
+            layers += [nn.Linear(width, units_out), nn.ReLU(inplace=True), *_dropout(i, start, dropout)]
+            width = units_out
+        self.features = nn.Sequential(*layers)
+        layers, width = [], width + self.views
+        for i, units_out in enumerate(arch.fcs):
+            layers += [nn.Linear(width, units_out), nn.ReLU(inplace=True),
+                       *_dropout(len(arch.convs) + i, start, dropout)]
+            width = units_out
+        self.joint_head = nn.Sequential(*layers, nn.Linear(width, self.views))
+
+    def encode(self, points: torch.Tensor) -> torch.Tensor:
+        """(B, N, 3) points -> (B, F) the max over the points of their shared-MLP features."""
+        return self.features(points * self.point_scale).amax(dim=1)
+
+    def head(self, features: torch.Tensor, taken: torch.Tensor, turns: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, F) cloud features and (B, V) view states -> (B, V) scores."""
+        return self.joint_head(torch.cat([features, taken.to(features.dtype)], dim=1))
+
+    def forward(self, points: torch.Tensor, taken: torch.Tensor, turns: torch.Tensor | None = None) -> torch.Tensor:
+        return self.head(self.encode(points), taken)
+
+
+SCORE_NETS = {"nbvscore-3": ViewScoreNet, "nbvscore-fc3": ScoreNet, "nbvscore-pc": PointScoreNet}
 
 
 def build_model(name: str, dropout_from: str = "conv3", dropout: float = 0.5,
-                views: np.ndarray | None = None) -> NBVNet | ScoreNet:
+                views: np.ndarray | None = None) -> NBVNet | ScoreNet | PointScoreNet:
     """The registry's one factory; a score network (``nbvscore-*``) also needs ``views``, the
     (V, 3) unit directions of the candidate views it scores."""
     if architecture(name).task == "scores":

@@ -34,6 +34,7 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from nbvdata.cloud import ScannedCloud
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
@@ -151,6 +152,24 @@ def grid_from_scans(scans: list[SensorScan], frame: ObjectFrame, config: SimConf
     return grid.probabilities()
 
 
+def cloud_from_scans(scans: list[SensorScan], frame: ObjectFrame, config: SimConfig,
+                     max_range: float | None = None) -> np.ndarray:
+    """(M, 3) float32 every scan's points in the object frame, scan by scan in order
+    (``nbvdata.cloud.ScannedCloud``, as the generator collects a run's hits): those inside the
+    grid's cube (the generator's scene holds the object alone) and within the maximum range of
+    their sensor (beyond it a point is no return, as in the grid). ``max_range`` in world metres
+    (None: ``sensor.far * k``)."""
+    cloud = ScannedCloud()
+    reach = config.sensor.far if max_range is None else max_range / frame.k  # in object units
+    half = config.scene_grid.extent / 2
+    for scan in scans:
+        origin = frame.to_object(scan.origin[None])[0]
+        points = frame.to_object(scan.points)
+        keep = (np.abs(points) <= half).all(axis=1) & (np.linalg.norm(points - origin, axis=1) <= reach)
+        cloud.add(points[keep].astype(np.float32))
+    return cloud.points()
+
+
 def check_world_frame(scan: SensorScan, frame: ObjectFrame, config: SimConfig) -> None:
     """PlanError when a cloud looks like camera-frame points: moved by its camera-to-world pose,
     many more of them fall in the object's box than as given (``sensordata.check_pose`` checks
@@ -227,15 +246,16 @@ class GridPlanner(Protocol):
 
     ``taken`` (S, 3) are the sensor positions of the scans so far, object frame (None for an
     OctoMap): a candidate-score network masks the candidates they took; the regression and
-    classification networks do not use them. ``view_units``: a candidate-score network's (V, 3)
-    unit candidate views, None for the others."""
+    classification networks do not use them. ``cloud`` (M, 3) every scanned point in the object
+    box, object frame (``cloud_from_scans``; None for an OctoMap): what a point network reads.
+    ``view_units``: a candidate-score network's (V, 3) unit candidate views, None for the others."""
 
     name: str
     epoch: int
     radius: float
     view_units: np.ndarray | None
 
-    def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
         ...
 
 
@@ -247,17 +267,24 @@ class NetworkPlanner:
         self.name, self.epoch, self.radius = predictor.name, predictor.epoch, predictor.radius
         self.view_units = predictor.view_units
 
-    def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
         return self.predictor.predict(grid)[0]
 
 
 class ScorePlanner(NetworkPlanner):
     """A candidate-score checkpoint: the best-scoring candidate view not taken by a scan (each scan's
     sensor position marks its nearest candidate view, ``nbvdata.views.scanned_views``; an
-    OctoMap has no scans, so none is marked)."""
+    OctoMap has no scans, so none is marked). A point network (``nbvscore-pc``) scores from the
+    scans' points instead of the grid, so it needs scans."""
 
-    def next_view(self, grid: np.ndarray, taken: np.ndarray | None) -> NBVPrediction:
-        return self.predictor.predict(grid, scanned_state(taken, self.view_units))[0]
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
+        state = scanned_state(taken, self.view_units)
+        if self.predictor.inputs == "points":
+            if cloud is None or not len(cloud):
+                raise PlanError(f"{self.name} reads the scans' points: give --scans whose points fall in the object "
+                                "box (an OctoMap holds no points)")
+            return self.predictor.predict(cloud, state)[0]
+        return self.predictor.predict(grid, state)[0]
 
 
 def scanned_state(taken: np.ndarray | None, view_units: np.ndarray | None) -> np.ndarray | None:
@@ -357,12 +384,13 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
     if max_range is not None and not max_range > 0:
         raise PlanError(f"--max-range {max_range}: must be > 0 metres (beyond it a point only carves free space)")
     frame = object_frame(center, size, up, config)
-    taken, reach, octomap_info = None, None, None
+    taken, reach, octomap_info, cloud = None, None, None, None
     if scans is not None:
         sensor_scans = read_scans(scans)
         reach = config.sensor.far * frame.k if max_range is None else float(max_range)
         grid = grid_from_scans(sensor_scans, frame, config, max_range)
         taken = frame.to_object(np.array([scan.origin for scan in sensor_scans]))
+        cloud = cloud_from_scans(sensor_scans, frame, config, max_range)
         source = str(scans)
     else:
         tree = read_octomap(octomap)
@@ -378,7 +406,7 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
     if abs(planner.radius - config.views.radius) > 1e-3 * config.views.radius:
         raise PlanError(f"the network was trained with views at {planner.radius:g} m, the scene config has "
                         f"views.radius {config.views.radius:g} m: pass the training data's scene (--config)")
-    prediction = planner.next_view(grid, taken)
+    prediction = planner.next_view(grid, taken, cloud)
     world = frame.pose_to_world(prediction.pose)
     candidate = candidate_fields(planner.view_units, prediction.direction, scanned_state(taken, planner.view_units))
     return PlanResult(world, prediction.pose, np.asarray(prediction.raw), frame, grid, config, planner, source,

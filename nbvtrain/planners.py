@@ -63,7 +63,7 @@ from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
-from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
+from nbvdata.views import FIXED_LAYOUTS, Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
 
@@ -77,17 +77,22 @@ class Observation:
 
     probabilities : (n, n, n) float32 occupancy grid, authors' encoding (0.5 = unknown)
     poses : the sensor poses scanned so far, oldest first
+    points : (M, 3) float32 every point scanned so far, object frame, oldest scan first
+             (``nbvdata.cloud.ScannedCloud``); None when the run keeps none
     """
 
     probabilities: np.ndarray
     poses: tuple[Pose, ...]
+    points: np.ndarray | None = None
 
 
 class Planner:
-    """Base class. ``privileged`` planners also receive the simulation's state (the oracle)."""
+    """Base class. ``privileged`` planners also receive the simulation's state (the oracle);
+    ``reads_points`` ones the scanned points (``Observation.points``)."""
 
     name = "planner"
     privileged = False
+    reads_points = False
 
     def start(self, seed: int | np.random.SeedSequence) -> None:
         """Called before every reconstruction; ``seed`` is that reconstruction's stream for the
@@ -133,6 +138,9 @@ class LearnedPlanner(Planner):
                                   f"{len(views)}: run with the settings it was trained with (--config/--set views.*)")
             self.predictors.append(predictor)
         self.predictor = self.predictors[0]
+        self.reads_points = self.predictor.inputs == "points"
+        if any((predictor.inputs == "points") != self.reads_points for predictor in self.predictors):
+            raise ConfigError("an ensemble of grid and point networks: pass networks that read the same input")
         self.views, self.no_stall = views, no_stall and expect != "scores"
         self.name = (expect + ("-nostall" if self.no_stall else "") + (f"-ens{len(paths)}" if len(paths) > 1 else "")
                      + ("-tta" if tta else ""))
@@ -153,18 +161,25 @@ class LearnedPlanner(Planner):
         positions = np.array([pose.position for pose in observation.poses]).reshape(-1, 3)
         return scanned_views(positions, self.views.unit_positions)
 
-    def view_scores(self, probabilities: np.ndarray, taken: np.ndarray) -> np.ndarray:
-        """(V,) the mean of the score networks' scores for a (n, n, n) grid and (V,) bool scanned
-        views, each standardised over the unscanned views (``nbvtrain.scores.standardise``), and
-        the mean standardised again: an increasing map of the scores for one network."""
+    def view_scores(self, observation: Observation, taken: np.ndarray) -> np.ndarray:
+        """(V,) the mean of the score networks' scores for the observation's (n, n, n) grid (a point
+        network: its scanned points) and (V,) bool scanned views, each standardised over the
+        unscanned views (``nbvtrain.scores.standardise``), and the mean standardised again: an
+        increasing map of the scores for one network."""
+        inputs = observation.probabilities
+        if self.reads_points:
+            if observation.points is None:
+                raise ValueError(f"{self.predictor.name} reads the scanned points: the run must keep them")
+            inputs = observation.points
         free = ~taken
-        members = [standardise(predictor.raw(probabilities, taken)[0], free) for predictor in self.predictors]
+        members = [standardise(predictor.raw(inputs, taken)[0], free) for predictor in self.predictors]
         return standardise(np.mean(members, axis=0), free)
 
     def next_view(self, observation: Observation) -> int:
-        """A score network's choice as a candidate view index (``next_pose`` is its pose)."""
+        """A score network's choice as a candidate view index (``next_pose`` is its pose); a point
+        network reads the scanned points, reduced as the generator reduces them."""
         taken = self.scanned(observation)
-        return int(pick(self.view_scores(observation.probabilities, taken)[None], taken[None])[0])
+        return int(pick(self.view_scores(observation, taken)[None], taken[None])[0])
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         task = self.predictor.model.task
@@ -221,11 +236,11 @@ class HybridPlanner(LearnedPlanner):
         self.name = f"hybrid-w{weight:g}" + self.name.removeprefix("scores")
         self._arguments = (checkpoint, config, views, weight, tta, stride)  # LearnedPlanner.__reduce__
 
-    def view_scores(self, probabilities: np.ndarray, taken: np.ndarray) -> np.ndarray:
-        network = super().view_scores(probabilities, taken)
+    def view_scores(self, observation: Observation, taken: np.ndarray) -> np.ndarray:
+        network = super().view_scores(observation, taken)
         if self.infogain is None:
             return network
-        scores, free = self.infogain.scores(probabilities), ~taken
+        scores, free = self.infogain.scores(observation.probabilities), ~taken
         valid = free & (scores.overlaps >= self.min_overlap) & (scores.information > 0)
         information = np.where(valid if valid.any() else free, scores.information, 0.0)
         return network + self.weight * standardise(information, free)
@@ -388,7 +403,8 @@ class InfoGainScores:
 
 class InfoGainPlanner(Planner):
     """Kriegel et al. 2012 information gain over ``count`` views on the view sphere, laid out like
-    the candidate views (``layout``; see the module docstring).
+    the candidate views (``layout``; see the module docstring; a fixed layout such as
+    ``pc-nbv-33``: its own views, whatever ``count``).
 
     The object's box is the cube of side ``box`` metres around the centre (what the robot is told
     about the object's size, ``mesh.object_size``), not the mesh's own bounds. A voxel is unknown
@@ -402,6 +418,8 @@ class InfoGainPlanner(Planner):
                  count: int = 20, layout: str = "hemisphere", unknown_low: float = 0.5, unknown_high: float = 0.5):
         self.grid, self.min_overlap = grid, min_overlap
         self.unknown = (np.float32(unknown_low), np.float32(unknown_high))
+        if layout in FIXED_LAYOUTS:  # a fixed layout (PC-NBV's 33 views): its own views
+            count = len(FIXED_LAYOUTS[layout]())
         positions = sphere_positions(count, radius, layout)
         self.views = ViewSet(positions, look_at_rotations(positions))
         rays = camera_rays(sensor)  # (N, 3) camera frame

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from nbvdata.config import SimConfig
+from nbvdata.policy import PolicyError
 from nbvdata.views import Pose, view_sphere
 from nbvtrain.checkpoint import load_checkpoint
 from nbvtrain.models import architecture
@@ -34,6 +35,10 @@ class CheckpointPolicy:
         if threads:
             torch.set_num_threads(threads)
         state = load_checkpoint(checkpoint)  # CheckpointError: one line naming the file and the fix
+        if architecture(state["model"]).inputs == "points":
+            raise PolicyError(f"--policy {checkpoint}: {state['model']} reads point clouds, which a policy's runs do "
+                              "not hand it yet: use a grid network's checkpoint (nbvtrain evaluate runs it in closed "
+                              "loop)")
         self.planner = LearnedPlanner(checkpoint, config.views.radius, architecture(state["model"]).task,
                                       view_sphere(config.views), config=config)
         self.name = f"{state['model']} epoch {state['epoch']}"

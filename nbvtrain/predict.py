@@ -24,11 +24,12 @@ from typing import Callable
 import numpy as np
 import torch
 
+from nbvdata.cloud import reduce_cloud
 from nbvdata.config import ConfigError
 from nbvdata.userarrays import GridError, check_grids
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import GRID_SIZE, NBVNet, ScoreNet, class_positions, quarter_turns
+from nbvtrain.models import GRID_SIZE, NBVNet, PointScoreNet, ScoreNet, class_positions, quarter_turns
 from nbvtrain.scores import pick
 
 
@@ -65,8 +66,8 @@ class Predictor:
                  tta: bool = False):
         path = self.path = Path(checkpoint)
         state = load_checkpoint(path)
-        self.model: NBVNet | ScoreNet = model_from(state, path)
-        if tta and (self.model.task == "classification" or (self.model.task == "scores" and not self.model.turns)):
+        self.model: NBVNet | ScoreNet | PointScoreNet = model_from(state, path)
+        if tta and (self.model.task == "classification" or (self.model.task == "scores" and not getattr(self.model, "turns", False))):
             outputs = ("its 14 class views" if self.model.task == "classification" else
                        "its candidate views, which are outputs (nbvscore-3 takes them as inputs),")
             raise ConfigError(f"{path}: quarter-turn averaging (--tta) is not exact for {state['model']}: quarter "
@@ -77,8 +78,10 @@ class Predictor:
             self.model.to(self.device).eval()
         except (RuntimeError, AssertionError) as error:  # an unknown device, or one this torch lacks
             raise ConfigError(f"device {device!r}: {str(error).strip()[:80]}: use cpu") from None
-        self._features = _fast_features(self.model, self.device)
+        self.inputs = self.model.inputs
+        self._features = _fast_features(self.model, self.device) if self.inputs == "grid" else None
         self.name, self.epoch, self.scene = state["model"], state["epoch"], state.get("scene")
+        self.points = int(state["points"]) if self.inputs == "points" else None  # model_from checked it
         self.view_units = state["view_units"].double().numpy() if self.model.task == "scores" else None
         self.radius = float(radius if radius is not None else state.get("view_radius", 0.4))
         self.k = float(k)
@@ -88,11 +91,20 @@ class Predictor:
             where = "--radius" if radius is not None else f"the view_radius of {path}: pass --radius"
             raise ConfigError(f"view radius {self.radius}: must be a positive finite number of metres ({where})")
 
-    def raw(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
+    def raw(self, grids: np.ndarray | list[np.ndarray], taken: np.ndarray | None = None) -> np.ndarray:
         """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
         positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
         scanned views, default none); with ``tta`` the mean of the four quarter turns' outputs,
-        turned back. GridError (a ValueError) for a bad grid (``check_grids``)."""
+        turned back. GridError (a ValueError) for a bad grid (``check_grids``).
+
+        A point network (``inputs`` "points") takes clouds instead: one (M, 3) array or a list of
+        B, object frame, metres, any M >= 1 - every point scanned, reduced here to the checkpoint's
+        ``points`` as the generator reduces them (``nbvdata.cloud.reduce_cloud``)."""
+        if self.inputs == "points":
+            clouds = torch.from_numpy(self.clouds(grids)).to(self.device)
+            with torch.inference_mode():
+                state = torch.from_numpy(self.taken(taken, len(clouds))).to(self.device)
+                return self.model(clouds, state).cpu().numpy().astype(np.float64)
         grids = check_grids(grids, GRID_SIZE)
         batch, turns = len(grids), TURNS if self.tta else (0,)
         if self.tta:  # (4B, n, n, n): the grids turned by 0..3 quarter turns, turn by turn
@@ -110,6 +122,13 @@ class Predictor:
             scores = self.model.head(self._features(self.model.encode(grids)), state, turned)
             return scores.cpu().numpy().astype(np.float64).reshape(len(turns), batch, -1).mean(axis=0)
 
+    def clouds(self, clouds: np.ndarray | list[np.ndarray]) -> np.ndarray:
+        """(B, points, 3) float32: each cloud (``check_cloud``) reduced to the checkpoint's size."""
+        clouds = [clouds] if isinstance(clouds, np.ndarray) and np.ndim(clouds) == 2 else list(clouds)
+        if not clouds:
+            raise GridError(f"no point cloud given: {self.name} reads one (M, 3) cloud per state")
+        return np.stack([reduce_cloud(check_cloud(cloud), self.points)[0] for cloud in clouds])
+
     def taken(self, taken: np.ndarray | None, batch: int) -> np.ndarray:
         """(B, V) bool view states of a score network from (V,), (B, V) or None (nothing scanned)."""
         views = len(self.view_units)
@@ -121,7 +140,8 @@ class Predictor:
         return np.array(state)  # a writable copy (torch.from_numpy wants one)
 
     def outputs(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
-        """(B, n, n, n) or (n, n, n) probabilities -> (B, 3) network positions (unit-sphere scale):
+        """(B, n, n, n) or (n, n, n) probabilities (a point network: clouds, see ``raw``) -> (B, 3)
+        network positions (unit-sphere scale):
         the regression output, the chosen class's view, or the unscanned candidate view (``taken``,
         see ``raw``) with the highest score. GridError (a ValueError) for a bad grid."""
         raw = self.raw(grids, taken)
@@ -132,7 +152,8 @@ class Predictor:
         return raw
 
     def predict(self, grids: np.ndarray, taken: np.ndarray | None = None) -> list[NBVPrediction]:
-        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown) -> B predictions
+        """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown; a point network: clouds,
+        see ``raw``) -> B predictions
         (``taken``: a score network's scanned views, see ``raw``). GridError (a ValueError) for a
         bad grid (see ``check_grids``)."""
         predictions = []
@@ -142,6 +163,24 @@ class Predictor:
             pose = Pose.look_at(direction * self.radius * self.k)
             predictions.append(NBVPrediction(raw, direction, pose))
         return predictions
+
+
+CLOUD = "(M, 3) finite float points, object frame, metres, M >= 1"
+
+
+def check_cloud(cloud: np.ndarray) -> np.ndarray:
+    """(M, 3) float32 of a cloud; GridError for another shape, a non-float dtype, no points or
+    NaN/infinite coordinates."""
+    array = np.asarray(cloud)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise GridError(f"cloud has shape {array.shape}, expected {CLOUD}")
+    if array.dtype.kind != "f":
+        raise GridError(f"cloud has dtype {array.dtype}, expected {CLOUD}")
+    if not len(array):
+        raise GridError(f"cloud holds no points: expected {CLOUD}")
+    if not np.isfinite(array).all():
+        raise GridError(f"cloud holds NaN or infinite coordinates: expected {CLOUD}")
+    return array.astype(np.float32, copy=False)
 
 
 def _fast_features(model: NBVNet | ScoreNet, device: torch.device) -> Callable[[torch.Tensor], torch.Tensor]:

@@ -142,12 +142,17 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
-    data = load_shards(shards, config.memory_limit_gb, config.mixed_scenes)
+    points = architecture(config.model).inputs == "points"
+    data = load_shards(shards, config.memory_limit_gb, config.mixed_scenes, clouds=config.model if points else None,
+                       grids=not points)
     try:
         taken = _view_states(data, config.model)
         if resumed is None:
             torch.manual_seed(config.seed)
-            model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units).to(device)
+            model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units)
+            if points:  # the clouds enter on the unit sphere's scale, as the targets
+                model.point_scale.fill_(1.0 / data.view_radius)
+            model = model.to(device)
             optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
             history: list[dict] = []
         else:
@@ -156,6 +161,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
                                       or not np.allclose(views, data.view_units, atol=1e-9)):
                 raise ConfigError(f"--resume: the run in {out} scores other candidate views than these shards': "
                                   "resume on the shards it was trained on, or start a new --out")
+        if config.augment and model.inputs == "points":
+            raise ConfigError(f"augment=true with {config.model}: quarter turns apply to grids; use augment=false")
         if config.augment and model.task == "scores" and not model.turns:
             raise ConfigError(f"augment=true with {config.model}: its views are outputs, and quarter turns do not map "
                               "the candidate views onto each other; use nbvscore-3 (views as inputs) or augment=false")
@@ -313,9 +320,9 @@ def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, dat
     Stops at a batch boundary when ``stop`` saw a Ctrl-C."""
     total = 0.0
     # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
-    with contextlib.closing(_prefetch(lambda b: _batch(data, *b), batches)) as prepared:
+    with contextlib.closing(_prefetch(lambda b: _batch(data, *b, model.inputs), batches)) as prepared:
         for codes, targets, index, turned in prepared:
-            grids = to_grids(codes, palette)
+            grids = _inputs(codes, palette, model.inputs, device)
             if model.task == "scores":
                 loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
             else:
@@ -355,12 +362,23 @@ def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.default_rng([seed, epoch, 1]).integers(2 ** 62))
 
 
-def _batch(data: ShardSet, indices: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(B, n, n, n) codes and (B, 3) float32 targets of ``indices``, rotated by ``turns``; ``indices``, ``turns``."""
+def _batch(data: ShardSet, indices: np.ndarray, turns: np.ndarray,
+           inputs: str = "grid") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(B, n, n, n) codes (``inputs`` "points": (B, P, 3) clouds) and (B, 3) float32 targets of
+    ``indices``, rotated by ``turns``; ``indices``, ``turns``."""
+    if inputs == "points":  # no augmentation for point networks (refused in fit)
+        return data.clouds.take(indices), data.targets[indices], indices, turns
     codes, targets = data.grids.take(indices), data.targets[indices]
     if turns.any():
         codes, targets = rotate_quarter_turns(codes, targets, turns)
     return codes, np.ascontiguousarray(targets, dtype=np.float32), indices, turns
+
+
+def _inputs(batch: np.ndarray, palette: torch.Tensor, inputs: str, device: torch.device) -> torch.Tensor:
+    """A batch of ``_batch`` as the network's input: (B, 1, n, n, n) grids or (B, P, 3) clouds."""
+    if inputs == "points":
+        return torch.from_numpy(batch).to(device, non_blocking=True)
+    return to_grids(batch, palette)
 
 
 def _prefetch(make: Callable, items: list) -> Iterator:
@@ -391,7 +409,8 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
     with torch.inference_mode():
         for i in range(0, len(val_idx), EVAL_BATCH):
             index = val_idx[i:i + EVAL_BATCH]
-            grids = to_grids(data.grids.take(index), palette)
+            grids = _inputs(_batch(data, index, np.zeros(len(index), dtype=np.int64), model.inputs)[0], palette,
+                            model.inputs, device)
             targets = torch.from_numpy(data.targets[index]).to(device)
             if model.task == "scores":
                 batch_loss, scores, scanned = _score_loss(model, grids, data, taken, index, config, device)
@@ -413,22 +432,24 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
 
 def _save(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
           history: list[dict], epoch: int, view_radius: float, scene: dict | None = None,
-          view_units: np.ndarray | None = None) -> None:
+          view_units: np.ndarray | None = None, points: int | None = None) -> None:
     """A checkpoint: weights, optimiser, settings, model name, history, the scene it was trained in
-    (``nbvtrain.scene``) and, for a score network, its (V, 3) candidate views; plain data, written
-    atomically."""
+    (``nbvtrain.scene``), for a score network its (V, 3) candidate views and for a point network the
+    size of its clouds (``points``); plain data, written atomically."""
     state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
              "view_radius": view_radius, "scene": scene, "state_dict": model.state_dict(),
              "optimizer": optimizer.state_dict(), "history": history,
              "target": "unit NBV position (x, y, z) / view radius"}
     if model.task == "scores":
         state |= {"view_units": view_units, "target": "one score per candidate view (view_units), higher = better"}
+    if model.inputs == "points":
+        state |= {"points": points, "inputs": "partial point cloud (points, 3), object frame, metres"}
     save_checkpoint(path, state)
 
 
-def _recorded(data: ShardSet) -> tuple[float, dict | None, np.ndarray | None]:
-    """What a checkpoint records of its training data: view radius, scene, candidate views."""
-    return data.view_radius, data.scene, data.view_units
+def _recorded(data: ShardSet) -> tuple[float, dict | None, np.ndarray | None, int | None]:
+    """What a checkpoint records of its training data: view radius, scene, candidate views, cloud size."""
+    return data.view_radius, data.scene, data.view_units, data.cloud_points
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -150,3 +150,29 @@ def test_the_docs_example_trains(shards, tmp_path, monkeypatch):
     exec(compile(example, "docs/training.md", "exec"), namespace)
     assert manifest.exists() and np.isfinite(namespace["loss"].item())
     assert len(namespace["train"]) == len(open_verified(manifest).split("random")["train"])
+
+
+@pytest.mark.parametrize("memory_limit_gb", [8.0, 0.0], ids=["in memory", "lazy"])
+def test_points_true_yields_each_states_cloud(tmp_path, memory_limit_gb):
+    out = tmp_path / "clouds"
+    assert nbvdata_main(["generate", "--config", str(SMOKE), "--out", str(out), "--set", "state.points=32", "--set",
+                         "episode.runs_per_mesh=1", "--workers", "1", "--no-progress"]) == 0
+    dataset = NBVDataset(out, points=True, memory_limit_gb=memory_limit_gb)
+    loaded = _load_all(dataset)
+    paths = sorted(out.glob("*.h5"))
+    points = np.concatenate([Shard(p)["points"] for p in paths])
+    counts = np.concatenate([Shard(p)["points_count"] for p in paths])
+    assert loaded["points"].dtype == torch.float32 and np.array_equal(loaded["points"].numpy(), points)
+    assert np.array_equal(loaded["points_count"].numpy(), counts)
+    clone = pickle.loads(pickle.dumps(dataset))
+    assert torch.equal(clone[2]["points"], dataset[2]["points"]) and torch.equal(clone[2]["grid"], dataset[2]["grid"])
+    dataset.close()
+    with pytest.raises(ShardError, match="holds no point clouds.*state.points=1024"):
+        NBVDataset(_grid_only(tmp_path), points=True)
+
+
+def _grid_only(tmp_path: Path) -> Path:
+    out = tmp_path / "grids"
+    assert nbvdata_main(["generate", "--config", str(SMOKE), "--out", str(out), "--set", "episode.runs_per_mesh=1",
+                         "--workers", "1", "--no-progress"]) == 0
+    return out

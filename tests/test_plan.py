@@ -251,7 +251,7 @@ class UnknownCentroid:
 
     name, epoch, radius, view_units = "unknown-centroid", 0, 0.4, None
 
-    def next_view(self, grid, taken):
+    def next_view(self, grid, taken, cloud=None):
         centres = OccupancyGrid(SimConfig().scene_grid).voxel_centres()
         mean = centres[grid == 0.5].mean(axis=0)
         direction = np.array([mean[0], mean[1], abs(mean[2])]) / np.linalg.norm(mean)

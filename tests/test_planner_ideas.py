@@ -113,8 +113,8 @@ def test_an_ensemble_gives_each_network_one_vote_whatever_its_scale(scene, state
     for grid, poses in states:
         taken = ensemble.scanned(Observation(grid, poses))
         assert np.allclose(scaled.raw(grid, taken), 1000 * b.raw(grid, taken) + 7, rtol=1e-4)  # the copy is scaled
-        mixed = ensemble.view_scores(grid, taken)
-        assert np.allclose(rescaled.view_scores(grid, taken), mixed, atol=1e-4)
+        mixed = ensemble.view_scores(Observation(grid, poses), taken)
+        assert np.allclose(rescaled.view_scores(Observation(grid, poses), taken), mixed, atol=1e-4)
         assert ensemble.next_view(Observation(grid, poses)) == rescaled.next_view(Observation(grid, poses))
         assert not np.allclose(mixed, standardise(a.raw(grid, taken)[0], ~taken), atol=1e-3)  # b counts
         # a plain mean would be b's choice alone: the scaled network drowns the other

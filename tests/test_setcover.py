@@ -282,7 +282,7 @@ def test_scvp_export_refuses_shards_it_cannot_hold_in_one_line(tmp_path, capsys,
 def test_bad_cover_settings_are_one_line_errors(capsys):
     for setting, message in (("oracle.cover_time_limit=0", "oracle.cover_time_limit=0.0: must be > 0 seconds"),
                              ("views.layout=scvp-33", "views.layout='scvp-33': must be one of"),
-                             ("views.layout=scvp-32", "views.layout=scvp-32 has 32 views, set views.count=32")):
+                             ("views.layout=scvp-32", "views.layout=scvp-32 has 32 views: set views.count=32")):
         assert main(["generate", "--out", "/nonexistent/never", "--set", setting]) == 2
         error = capsys.readouterr().err
         assert message in error and len(error.strip().splitlines()) == 1
