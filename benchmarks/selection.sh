@@ -111,7 +111,7 @@ evaluate_val() {  # OUT_NAME EVALUATE_FLAGS...: one closed-loop evaluation of th
     log "validation objects: $out"
     rm -rf "$out"
     nice -n 10 nbvtrain evaluate --manifest "$MANIFEST" --part val --meshes "$MESHES" "${EVAL[@]}" \
-        --workers "$WORKERS" "${SCENE[@]}" --out "$out" --no-progress "$@"
+        --workers "$WORKERS" "${SCENE[@]}" --out "$out" --no-progress --no-floors "$@"
 }
 
 stage_fit() {

@@ -239,13 +239,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("no planner left to run: give checkpoints or add infogain, oracle or random to --planners")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     workers = args.workers or os.cpu_count() or 1
-    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers)
+    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers, args.floors)
     report.failures = failures + report.failures
     learned = {p.name: p.checkpoints for p in planners if hasattr(p, "checkpoints")}
     recorded = {name: files[0] if len(files) == 1 else files for name, files in learned.items()}  # or an ensemble
     settings = settings_dict(config, meshes=args.meshes, **selection, planners=[p.name for p in planners],
                              scans=args.scans, starts=args.starts, seed=args.seed, checkpoints=recorded,
-                             no_stall=args.no_stall, tta=args.tta,
+                             no_stall=args.no_stall, tta=args.tta, floors=args.floors,
                              **({"hybrid_weights": weights, "hybrid_stride": args.hybrid_stride}
                                 if "hybrid" in names else {}))
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
@@ -449,6 +449,10 @@ def build_parser() -> Parser:
                           help="override one simulation setting, e.g. --set sensor.noise_std=0.001")
     evaluate.add_argument("--workers", type=non_negative_int, default=1, help="meshes evaluated at once, in "
                           "processes of one thread each; the same outputs but timings (default 1; 0 = one per core)")
+    evaluate.add_argument("--floors", action=argparse.BooleanOptionalAction, default=True,
+                          help="the set cover of every start (floors.csv; the fewest scans any planner could need), "
+                          "up to oracle.cover_time_limit seconds each (default on; --no-floors for the many "
+                          "evaluations that choose a network)")
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)

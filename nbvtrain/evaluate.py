@@ -162,10 +162,13 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
-             starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1) -> EvaluationReport:
+             starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1,
+             floors: bool = True) -> EvaluationReport:
     """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
     then writes the files). ``workers`` > 1 evaluates meshes in that many processes (joblib loky,
-    one thread each); the rows are the same, in the same order, as with one."""
+    one thread each); the rows are the same, in the same order, as with one. ``floors`` False
+    leaves out the set cover of every start (``start_floor``: up to ``oracle.cover_time_limit``
+    seconds each), e.g. for the many evaluations that choose a network."""
     from tqdm import tqdm
 
     began = time.perf_counter()
@@ -173,7 +176,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     with _mesh_runner(workers, bar) as run:
-        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed) for source in sources])
+        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors) for source in sources])
         for source, (rows, floors, failure) in zip(sources, results):
             report.rows += rows
             report.floors += floors
@@ -186,10 +189,10 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
 
 
 def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
-                  seed: int, tick: Callable[[int], None] = lambda runs: None,
+                  seed: int, floors: bool = True, tick: Callable[[int], None] = lambda runs: None,
                   threads: int = 0) -> tuple[list[dict], list[dict], str | None]:
     """One mesh's coverage.csv rows (planner by planner, start by start), its floors.csv rows (one
-    per start), and why it could not be used (None if it could). ``tick(runs)`` counts
+    per start; none without ``floors``), and why it could not be used (None if it could). ``tick(runs)`` counts
     reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
     (parallel workers pass 1)."""
     if threads:
@@ -201,8 +204,9 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
         tick(len(planners) * (1 + starts))
         return [], [], str(error)
     firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
-    floors = [{"mesh": source.stem, "start": number, "start_view": first}
-              | start_floor(scene, first, run_seed(seed, source.mesh_id, number)) for number, first in enumerate(firsts)]
+    floor_rows = [{"mesh": source.stem, "start": number, "start_view": first}
+                  | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
+                  for number, first in enumerate(firsts)] if floors else []
     rows = []
     for planner in planners:
         for number, first in enumerate(firsts):
@@ -210,7 +214,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
             rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
                      for row in run]
             tick(1)
-    return rows, floors, None
+    return rows, floor_rows, None
 
 
 def _limit_threads(threads: int) -> None:

@@ -330,6 +330,17 @@ def test_setcover_planner_reaches_everything_in_exactly_the_floors_scans(tmp_pat
     assert (tmp_path / "floors.csv").read_text().splitlines()[0] == ",".join(FLOOR_COLUMNS)
 
 
+def test_evaluating_without_floors_leaves_them_out_and_changes_no_row():
+    config = load_config(SimConfig, SMOKE, [])
+    source = builtin_sources()[0]
+    planners, _ = build_planners(["oracle", "random"], config, view_sphere(config.views), {})
+    with_floors = evaluate([source], planners, config, scans=4, starts=1)
+    without = evaluate([source], planners, config, scans=4, starts=1, floors=False)
+    assert len(with_floors.floors) == 2 and without.floors == []
+    drop = lambda rows: [{k: v for k, v in row.items() if k != "seconds"} for row in rows]  # noqa: E731
+    assert drop(without.rows) == drop(with_floors.rows)
+
+
 def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, capsys):
     from nbvdata.manifest import publish
 
