@@ -30,6 +30,21 @@ new points cover: the same quantity up to the reference set. Their LMDB writer r
 0..ex_times-1 and scans 0..num_scans-1 of every model: shards whose runs stop early (every run
 has ``episode.max_scans`` states with ``--set episode.min_gain=0``) need those numbers set per
 model, or the missing files skipped.
+
+scvp - the folders SCVP's sc-net trains on (Pan et al. 2022, their ``VOXELDataset``), one per
+state, found by walking the tree; only shards of SCVP's scene export: 32^3 grids, their 32 views
+(``views.layout: scvp-32``) and set-cover labels (``oracle.cover``)::
+
+    DIR/view_space.txt                    32, then one "x y z" line per candidate view (metres, our
+                                          radius; shortest round-trip decimals)
+    DIR/<shard>/<index>/grid.txt          32,768 occupancy probabilities, one per line
+    DIR/<shard>/<index>/view_ids.txt      the state's cover: view indices, one per line
+
+``<shard>`` is the shard's file name without ``.h5``, ``<index>`` the sample's row in it (six
+digits). The grid's line order is the C order of our (x, y, z) grid: line i*1024 + j*32 + k is
+voxel [i, j, k], i along x, j along y, k along z - the order of SCVP's generator (its loops run
+x, then y, then z innermost) and of their readers' ``reshape(32, 32, 32)``. Values are written
+with 9 significant digits, so each float32 probability reads back exactly.
 """
 
 from __future__ import annotations
@@ -153,8 +168,59 @@ def write_pc_nbv(paths: list[Path], out: Path) -> ExportReport:
     return report
 
 
+SCVP_VIEWS, SCVP_GRID = 32, 32  # SCVP's network reads 32 candidate views and 32^3 grids
+
+
+def write_scvp(paths: list[Path], out: Path) -> ExportReport:
+    """The ``scvp`` format (see the module docstring) of shards ``paths`` under ``out``; every
+    shard is checked before anything is written."""
+    positions = None
+    for path in paths:
+        with Shard(path) as shard:
+            _check_scvp(shard)
+            here = shard["view_positions"]
+            if positions is not None and not np.array_equal(here, positions):
+                raise ShardError(f"{path}: other candidate views than {paths[0]}: export shards of one view layout "
+                                 "together")
+            positions = here
+    report = ExportReport(out)
+    lines = [str(len(positions))] + [" ".join(repr(value) for value in row) for row in positions.tolist()]
+    (out / "view_space.txt").write_text("\n".join(lines) + "\n")
+    report.files += 1
+    meshes, runs = set(), set()
+    for path in paths:
+        with Shard(path) as shard:
+            covers, run = shard["cover"], shard["run"]
+            meshes.add(mesh_folder_name(path))
+            runs.update((mesh_folder_name(path), int(number)) for number in run)
+            for index in range(len(shard)):
+                folder = out / Path(path).stem / f"{index:06d}"
+                folder.mkdir(parents=True)
+                grid = shard.grids(index).reshape(-1)  # C order of [x, y, z]
+                (folder / "grid.txt").write_text("\n".join(f"{value:.9g}" for value in grid.tolist()) + "\n")
+                (folder / "view_ids.txt").write_text("".join(f"{view}\n" for view in np.flatnonzero(covers[index])))
+                report.files += 2
+            report.states += len(shard)
+    report.meshes, report.runs = len(meshes), len(runs)
+    return report
+
+
+def _check_scvp(shard: Shard) -> None:
+    """One line naming the fix for a shard SCVP's format cannot hold."""
+    if not shard.has("cover"):
+        raise ShardError(f"{shard.path}: no set-cover labels; generate with --set oracle.cover=true to export "
+                         "--format scvp")
+    views = len(shard["view_positions"])
+    if views != SCVP_VIEWS:
+        raise ShardError(f"{shard.path}: {plural(views, 'candidate view')}, SCVP's format has their {SCVP_VIEWS}: "
+                         "generate with --set views.layout=scvp-32 --set views.count=32")
+    size = shard.file["grids"].shape[1]
+    if size != SCVP_GRID:
+        raise ShardError(f"{shard.path}: {size}^3 grids, SCVP reads {SCVP_GRID}^3: generate with grid.size 32")
+
+
 # --format name -> writer(shard paths, out folder) -> ExportReport
-FORMATS: dict[str, Callable[[list[Path], Path], ExportReport]] = {"pc-nbv": write_pc_nbv}
+FORMATS: dict[str, Callable[[list[Path], Path], ExportReport]] = {"pc-nbv": write_pc_nbv, "scvp": write_scvp}
 
 
 def describe(report: ExportReport, fmt: str) -> str:

@@ -86,7 +86,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
             if predictor.view_units is not None and shard.has("last_view"):
-                from nbvtrain.data import view_state
+                from nbvdata.shards import view_state
 
                 states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
                 taken = states[args.index]
@@ -96,7 +96,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         predictions = predictor.predict(grid, taken)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
-    if grid.ndim == 3:  # one grid: one answer
+    if predictor.inputs == "points" or grid.ndim == 3:  # one cloud or one grid: one answer
         answer = prediction_dict(predictions[0], predictor, source, taken)
     else:  # (B, 32, 32, 32): a list of B answers, in order
         answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken)

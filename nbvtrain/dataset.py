@@ -72,7 +72,7 @@ class NBVDataset(torch.utils.data.Dataset):
             self.points_count = self._column("points_count", np.int64, "points")
             self._clouds = data.clouds
             if isinstance(data.clouds, LazyClouds):  # each worker process opens its own
-                self._clouds = ([shard.path for shard in data.clouds.shards], data.clouds.offsets)
+                self._clouds = ([shard.path for shard in data.clouds.shards], data.clouds.offsets, data.clouds.size)
                 data.clouds.close()
         if scores:
             if data.gains is None:
@@ -112,7 +112,7 @@ class NBVDataset(torch.utils.data.Dataset):
         if self._lazy is not None:
             state["_grids"], state["_pid"] = None, None
         if isinstance(self._clouds, LazyClouds):
-            state["_clouds"] = ([shard.path for shard in self._clouds.shards], self._clouds.offsets)
+            state["_clouds"] = ([shard.path for shard in self._clouds.shards], self._clouds.offsets, self._clouds.size)
         return state
 
     def _cloud_source(self):

@@ -201,7 +201,7 @@ def test_point_network_user_errors_are_one_line_and_exit_2(shards, checkpoint, t
         (["fit", grid_shard, "--model", "nbvscore-pc", "--epochs", "1", "--out", str(tmp_path / "r")],
          "holds no point clouds, which nbvscore-pc reads"),
         (["predict", grid_shard, "--checkpoint", str(checkpoint)], "holds no point clouds, which nbvscore-pc reads"),
-        (["predict", str(tmp_path / "bad.npy"), "--checkpoint", str(checkpoint)], "not a readable .npy"),
+        (["predict", str(tmp_path / "bad.npy"), "--checkpoint", str(checkpoint)], "not a numpy array file (.npy)"),
         (["fit", str(shards), "--model", "nbvscore-pc", "--augment", "--out", str(tmp_path / "s")],
          "quarter turns apply to grids"),
     ]
