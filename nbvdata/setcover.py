@@ -75,10 +75,19 @@ def greedy_cover(oracle: ViewOracle, covered: np.ndarray) -> list[int]:
 
 
 @numba.njit(cache=True)
+def _subset(packed, a, b):
+    """Whether row ``a`` of ``packed`` ((n, W) uint64 bit sets) is a subset of row ``b``."""
+    for w in range(packed.shape[1]):
+        if packed[a, w] & ~packed[b, w]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
 def _minimal(signatures, order):
     """keep[i]: no row kept before row i (in ``order``, which sorts the (U, W) uint64 rows by size,
     so a row's subsets come before it) is a subset of it: the minimal rows, one of each set."""
-    count, words = signatures.shape
+    count = signatures.shape[0]
     keep = np.zeros(count, dtype=np.bool_)
     kept = np.empty(count, dtype=np.int64)
     found = 0
@@ -86,13 +95,7 @@ def _minimal(signatures, order):
         row = order[position]
         dominated = False
         for k in range(found):
-            other = kept[k]
-            subset = True
-            for w in range(words):
-                if signatures[other, w] & ~signatures[row, w]:
-                    subset = False
-                    break
-            if subset:
+            if _subset(signatures, kept[k], row):
                 dominated = True
                 break
         if not dominated:
@@ -116,16 +119,11 @@ def _minimal_rows(oracle: ViewOracle, remaining: np.ndarray) -> np.ndarray:
 def _dominated_by_lower(columns):
     """dominated[j]: some view i < j covers every row view j covers (``columns``: (V, W) uint64,
     each view's rows packed)."""
-    views, words = columns.shape
+    views = columns.shape[0]
     dominated = np.zeros(views, dtype=np.bool_)
     for j in range(views):
         for i in range(j):
-            subset = True
-            for w in range(words):
-                if columns[j, w] & ~columns[i, w]:
-                    subset = False
-                    break
-            if subset:
+            if _subset(columns, j, i):
                 dominated[j] = True
                 break
     return dominated
