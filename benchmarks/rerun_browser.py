@@ -40,7 +40,7 @@ from PIL import Image
 
 from nbvdata.cli import main as nbvdata_main
 
-WINDOW = (1400, 900)
+WINDOW = (1400, 1000)
 CHROMIUM_FLAGS = ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-breakpad",
                   "--disable-crash-reporter", "--no-first-run", "--use-angle=swiftshader",
                   "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--enable-webgl",

@@ -61,7 +61,7 @@ OCCUPIED_LOW, OCCUPIED_HIGH = np.array([150, 190, 240.0]), np.array([20, 60, 160
 UNKNOWN = (230, 190, 30, 50)
 MESH = (200, 200, 200, 255)
 CHOSEN, NBV = (30, 200, 60), (230, 30, 30)
-EYE = [0.22, -0.22, 0.14]  # where each 3D view looks from, metres: inside the view sphere, the object ahead
+EYE = [0.44, -0.44, 0.38]  # where each 3D view looks from, metres: just outside the view sphere
 
 
 def gain_colours(gains: np.ndarray, valid: np.ndarray) -> np.ndarray:
