@@ -61,7 +61,7 @@ OCCUPIED_LOW, OCCUPIED_HIGH = np.array([150, 190, 240.0]), np.array([20, 60, 160
 UNKNOWN = (230, 190, 30, 50)
 MESH = (200, 200, 200, 255)
 CHOSEN, NBV = (30, 200, 60), (230, 30, 30)
-EYE = [0.44, -0.44, 0.38]  # where each 3D view looks from, metres: just outside the view sphere
+EYE = np.array([1.1, -1.1, 0.95])  # where each 3D view looks from, in view-sphere radii: just outside it
 
 
 def gain_colours(gains: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -96,17 +96,20 @@ class Recording:
         self.stream.save(self._partial)
         self.stream.send_recording_name(name)
         self.roots: list[str] = []
+        self.radius = 0.0  # of the largest view sphere of the runs
 
     def run(self, parts: Sequence[str], scene: Scene) -> "RunLog":
         """A new run under the entity path of ``parts`` (each escaped: ("regression", "start_0")
         -> regression/start_0); logs the scene's mesh there."""
         root = "/".join(rr.escape_entity_path_part(part) for part in parts)
         self.roots.append(root)
+        self.radius = max(self.radius, scene.config.views.radius)
         return RunLog(self.stream, root, scene)
 
     def close(self) -> Path:
         """Send the layout, finish the file and give it its name; returns the path."""
-        eye = rrb.archetypes.EyeControls3D(kind="Orbital", position=EYE, look_target=[0, 0, 0], eye_up=[0, 0, 1])
+        eye = rrb.archetypes.EyeControls3D(kind="Orbital", position=self.radius * EYE, look_target=[0, 0, 0],
+                                           eye_up=[0, 0, 1])
         views = [rrb.Spatial3DView(origin=root, name=root, eye_controls=eye) for root in self.roots]
         plot = rrb.TimeSeriesView(origin="/", contents=[f"+ /{root}/coverage" for root in self.roots],
                                   name="observable coverage (%)")
