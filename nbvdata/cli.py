@@ -8,6 +8,7 @@ and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import resource
@@ -22,6 +23,7 @@ from nbvdata.commandline import Parser, exit_quietly_when_stdout_closes, fractio
 from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.legacy import LegacyError
 from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
+from nbvdata.oracle import pack_bits
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
 from nbvdata.text import plural
@@ -78,11 +80,13 @@ def _parse_indices(text: str, count: int, flag: str = "--views", example: str = 
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Scan an object from a few views, integrate, report coverage, and render the state."""
+    """Scan an object from a few views, integrate, report coverage, and render the state (and,
+    with --rerun, record every scan)."""
     from nbvdata.render import render_state
     from nbvdata.scene import Scene
 
     config = load_config(SimConfig, args.config, args.overrides)
+    record = _record_module("--rerun") if args.rerun is not None else None
     obj = _load_object(args, config)
     rng = np.random.default_rng(args.seed)
     scene = Scene.build(obj, config, rng)
@@ -91,16 +95,23 @@ def cmd_demo(args: argparse.Namespace) -> int:
     covered = np.zeros(len(scene.coverage.points), dtype=bool)
     print(f"{obj.source}: {plural(len(obj.mesh.faces), 'face')}, {plural(len(scene.views), 'candidate view')}, "
           f"{int(scene.coverage.observable.sum())}/{len(scene.coverage.points)} reference points observable")
-    for step, view in enumerate(views, start=1):
-        start = time.perf_counter()
-        scan = scene.scanner.scan(scene.views[int(view)], rng)
-        scene.integrate(grid, scan)
-        elapsed = time.perf_counter() - start
-        covered |= scene.coverage.covered_by(scan.hit_points)
-        total, observable = scene.coverage.coverage(covered)
-        print(f"scan {step}: view {int(view):4d}  {int(scan.hit.sum()):5d} returns  "
-              f"coverage {100 * total:5.1f}%  observable {100 * observable:5.1f}%  "
-              f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
+    with record.Recording(args.rerun, f"demo {obj.source}") if record else contextlib.nullcontext() as recording:
+        run = recording.run(["demo"], scene) if recording is not None else None
+        for step, view in enumerate(views, start=1):
+            start = time.perf_counter()
+            scan = scene.scanner.scan(scene.views[int(view)], rng)
+            scene.integrate(grid, scan)
+            elapsed = time.perf_counter() - start
+            covered |= scene.coverage.covered_by(scan.hit_points)
+            total, observable = scene.coverage.coverage(covered)
+            print(f"scan {step}: view {int(view):4d}  {int(scan.hit.sum()):5d} returns  "
+                  f"coverage {100 * total:5.1f}%  observable {100 * observable:5.1f}%  "
+                  f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
+            if run is not None:
+                _log_demo_step(run, scene, grid, step, int(view), pack_bits(covered),
+                               int(views[step]) if step < len(views) else None)
+    if recording is not None:
+        print(f"wrote {recording.path}")
     out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
                        highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
                        title=f"{obj.source}: {plural(len(views), 'scan')}", labels=("last scan", "earlier scans"))
@@ -108,9 +119,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record_module(flag: str):
+    """``nbvdata.record``, or a UsageError naming the install command when rerun-sdk is missing."""
+    try:
+        import nbvdata.record as record
+    except ImportError as error:
+        raise UsageError(f"{flag}: {error}") from None
+    return record
+
+
+def _log_demo_step(run, scene, grid, step: int, view: int, covered: np.ndarray, following: int | None) -> None:
+    """Record the demo's state after ``step`` scans, the last from candidate ``view``, with the
+    oracle's scores of what the scans covered (``covered``: (W,) packed) and the next view."""
+    scores = scene.oracle.score(covered)
+    run.step(step, grid.probabilities(), scene.views[view], scene.oracle.observable_coverage(covered),
+             scores.gains, scores.overlaps, scores.best(scene.config.oracle.min_overlap),
+             scene.views[following] if following is not None else None)
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
-    from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources
+    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, builtin_sources, generate, mesh_sources
     from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
@@ -119,6 +148,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
              "generate.scheduler": args.scheduler}
     overrides = args.overrides + [f"{key}={value}" for key, value in flags.items() if value is not None]
     config = load_config(SimConfig, args.config, overrides)
+    if args.rerun_runs:
+        _record_module("--rerun-runs")  # missing: said before the job starts
     if args.policy is None and args.policy_provider is not None:
         raise UsageError(f"--policy-provider {args.policy_provider}: give the file it reads too (--policy FILE)")
     policy = None
@@ -133,7 +164,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     print(f"nbvdata generate: {plural(len(sources), 'mesh')} x {plural(config.episode.runs_per_mesh, 'run')} "
           f"({plural(units, 'shard')}) -> {args.out}")
     try:
-        report = generate(sources, args.out, config, failures, show_progress=args.progress, policy=policy)
+        report = generate(sources, args.out, config, failures, show_progress=args.progress, policy=policy,
+                          rerun_runs=args.rerun_runs or 0)
     except KeyboardInterrupt:
         print(f"nbvdata generate: interrupted; finished shards are kept, run the same command "
               f"again to continue", file=sys.stderr)
@@ -144,6 +176,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
           f"{report.seconds:.1f} s ({rate:.1f} samples/s)" + _already_there(report.skipped)
           + (f"; {plural(others, 'shard')} {'was' if others == 1 else 'were'} left to another process"
              if others else ""))
+    recordings = [args.out / RERUN_FOLDER / Path(result.unit.shard_name).with_suffix(".rrd").name
+                  for result in report.done if result.unit.runs[0] < (args.rerun_runs or 0)]
+    recordings = [path for path in recordings if path.exists()]
+    if recordings:
+        print(f"{plural(len(recordings), 'Rerun recording')} in {args.out / RERUN_FOLDER} (open one with: "
+              f"rerun {recordings[0]})")
     if config.oracle.cover and any(result.cover_seconds for result in report.done):
         from collections import defaultdict
 
@@ -404,6 +442,9 @@ def build_parser() -> Parser:
     gen.add_argument("--backend", choices=["loky", "threading", "dask"],
                      help="joblib backend (generate.backend)")
     gen.add_argument("--scheduler", help="Dask scheduler address for --backend dask (generate.scheduler)")
+    gen.add_argument("--rerun-runs", type=positive_int, metavar="K", help="also write Rerun recordings of the "
+                     "first K runs of each mesh, one per shard in OUT/rerun/ (open one with: rerun FILE.rrd; needs "
+                     "the viz extra; the shards stay the same bytes; docs/rerun.md)")
     gen.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                      help="show a progress bar (default: on a terminal)")
     gen.set_defaults(func=cmd_generate)
@@ -477,6 +518,8 @@ def build_parser() -> Parser:
     demo.add_argument("--scans", type=positive_int, default=4, help="number of scans (default 4)")
     demo.add_argument("--seed", type=non_negative_int, default=0, help="seed for the views, noise and reference points")
     demo.add_argument("--out", type=Path, default=Path("nbv_demo.png"), help="PNG to write")
+    demo.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="also write a Rerun recording of every scan "
+                      "(open it with: rerun FILE.rrd; needs the viz extra; docs/rerun.md)")
     demo.set_defaults(func=cmd_demo)
 
     legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")

@@ -39,7 +39,7 @@ import yaml
 from nbvdata import __version__
 from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials, write_atomic
 from nbvdata.config import ConfigError, GenerateConfig, MeshConfig, SimConfig
-from nbvdata.episode import Mover, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
+from nbvdata.episode import Mover, RunRecord, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
 from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
@@ -49,6 +49,7 @@ from nbvdata.shards import COVER, GENERATED, MOVES, GridPalette, Shard, ShardErr
 CONFIG_FILE = "config.yaml"
 POLICY_FILE = "policy.yaml"
 FAILURES_FILE = "failures.tsv"
+RERUN_FOLDER = "rerun"  # --rerun-runs: one recording per shard, named as it (nbvdata.record)
 
 
 @dataclass(frozen=True)
@@ -151,12 +152,14 @@ class Timer:
 
 
 def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None = None,
-             threads: int = 0, policy: PolicySource | None = None) -> UnitResult:
+             threads: int = 0, policy: PolicySource | None = None, rerun_runs: int = 0) -> UnitResult:
     """Claim the unit, simulate and label its runs and write its shard. Never raises for a bad
     mesh: the reason comes back in ``UnitResult.error``. A unit another process holds, or has
     finished, is left to it (``UnitResult.elsewhere``). ``progress(runs, samples)`` is called per
     run. ``threads`` > 0 limits numba, open3d and torch to that many threads (parallel workers
-    pass 1). ``policy``: the checkpoint the runs follow (loaded here, once per process)."""
+    pass 1). ``policy``: the checkpoint the runs follow (loaded here, once per process).
+    ``rerun_runs``: runs 0..rerun_runs-1 of the mesh are also recorded, after the shard is
+    written, to ``RERUN_FOLDER``/<shard name>.rrd (``record_unit``)."""
     out_dir = Path(out_dir)
     with claim(out_dir, unit.shard_name) as mine:
         if not mine:
@@ -166,13 +169,14 @@ def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[i
             return UnitResult(unit, elsewhere="done")
         shard.unlink(missing_ok=True)  # broken: redone
         drop_partials(out_dir, unit.shard_name)  # a dead process's: the claim is ours
-        return _run_claimed(unit, config, out_dir, progress, threads, policy)
+        return _run_claimed(unit, config, out_dir, progress, threads, policy, rerun_runs)
 
 
 def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[int, int], None] | None,
-                 threads: int, policy: PolicySource | None = None) -> UnitResult:
+                 threads: int, policy: PolicySource | None = None, rerun_runs: int = 0) -> UnitResult:
     """``run_unit`` once the unit is claimed."""
     result = UnitResult(unit)
+    recorded_runs: list[tuple[int, RunRecord]] = []  # (run, record) of the runs to record
     timer = Timer()
     if threads:
         import numba
@@ -208,6 +212,8 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
             columns["run"].extend([run] * len(record))
             columns["step"].extend(range(1, len(record) + 1))
             columns["seed"].extend([rng_seed] * len(record))
+            if run < rerun_runs:
+                recorded_runs.append((run, record))
             result.cover_seconds += list(enumerate(record.cover_seconds, start=1))
             if progress is not None:
                 progress(1, len(record))
@@ -230,8 +236,27 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
     except Exception as error:  # a mesh that breaks the simulation must not stop the others
         logging.getLogger(__name__).debug("unit %s failed", unit.shard_name, exc_info=True)
         result.error = f"{type(error).__name__}: {error}"
+    if recorded_runs and result.error is None:
+        with timer("record"):
+            record_unit(out_dir / RERUN_FOLDER / Path(unit.shard_name).with_suffix(".rrd").name, scene,
+                        recorded_runs)
     result.seconds = dict(timer.seconds)
     return result
+
+
+def record_unit(path: Path, scene: Scene, runs: list[tuple[int, RunRecord]]) -> None:
+    """Write the Rerun recording of a unit's first runs ((run, record) pairs), each under the
+    entity path run_NNNN (``nbvdata.record``). A recording that cannot be written is logged as
+    a warning: the shard, written before, stands."""
+    from nbvdata.record import Recording, log_record
+
+    try:
+        with Recording(path, path.stem) as recording:
+            for run, record in runs:
+                log_record(recording.run([f"run_{run:04d}"], scene), record)
+    except Exception as error:
+        logging.getLogger(__name__).warning("could not write the recording %s: %s: %s", path,
+                                            type(error).__name__, error)
 
 
 class SceneCache:
@@ -410,13 +435,16 @@ def _completed(path: Path) -> bool:
 
 def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
              failures: list[tuple[str, str]] = (), show_progress: bool | None = None,
-             policy: PolicySource | None = None) -> Report:
+             policy: PolicySource | None = None, rerun_runs: int = 0) -> Report:
     """Run every unit not yet in ``out_dir`` and not claimed by another process; returns what was
     done, skipped, failed and left to others.
 
     Units another process held are tried again after the others: those it has given up (killed)
     are done here. ``show_progress`` None shows the bar only on a terminal. ``policy``: the
     checkpoint the runs follow (loaded here first, so that a bad one fails at once).
+    ``rerun_runs``: also record the first that many runs of each mesh, one Rerun recording per
+    shard in ``out_dir``/``RERUN_FOLDER``, written by the worker that writes the shard (units
+    already done are not run again, so not recorded); the shards are the same bytes.
     """
     from tqdm import tqdm
 
@@ -464,7 +492,7 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
             bar.write(f"nbvdata generate: failed: {result.unit.source.name}: {reason}", file=sys.stderr)
 
     try:
-        with _executor(config, out_dir, workers, advance, policy) as (execute, ticked):
+        with _executor(config, out_dir, workers, advance, policy, rerun_runs) as (execute, ticked):
             while todo:
                 for result in execute(todo):
                     finished(result, ticked)
@@ -483,14 +511,15 @@ def generate(sources: list[MeshSource], out_dir: Path, config: SimConfig,
 
 @contextlib.contextmanager
 def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[[int, int], None],
-              policy: PolicySource | None = None
+              policy: PolicySource | None = None, rerun_runs: int = 0
               ) -> Iterator[tuple[Callable[[list[Unit]], Iterator[UnitResult]], bool]]:
     """``(execute, ticked)``: ``execute(units)`` runs units and yields their results as they come
     back, in-process or on a joblib backend (one thread per worker); ``ticked``: their runs are
     counted through ``advance`` one by one. Each worker claims its unit itself (``run_unit``), so
     the claim is held by the process that writes the shard, whatever the backend."""
     if workers == 1 and config.generate.backend != "dask":
-        yield (lambda units: (run_unit(unit, config, out_dir, advance, policy=policy) for unit in units)), True
+        yield (lambda units: (run_unit(unit, config, out_dir, advance, policy=policy, rerun_runs=rerun_runs)
+                              for unit in units)), True
         return
     import joblib
 
@@ -513,7 +542,7 @@ def _executor(config: SimConfig, out_dir: Path, workers: int, advance: Callable[
         progress = _QueueProgress(ticks) if ticks is not None else None
 
         def execute(units: list[Unit]) -> Iterator[UnitResult]:
-            calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1, policy) for unit in units)
+            calls = (joblib.delayed(run_unit)(unit, config, out_dir, progress, 1, policy, rerun_runs) for unit in units)
             yield from joblib.Parallel(return_as="generator_unordered")(calls)
 
         yield execute, ticks is not None

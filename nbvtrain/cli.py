@@ -211,6 +211,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}, or a policy "
                           "module:function")
     config = load_config(SimConfig, args.config, args.overrides)
+    if args.rerun is not None:
+        try:
+            import nbvdata.record  # noqa: F401  (missing: said before any reconstruction)
+        except ImportError as error:
+            raise ConfigError(f"--rerun: {error}") from None
     selection = {}
     if args.manifest is not None:
         if args.part is None:
@@ -239,7 +244,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("no planner left to run: give checkpoints or add infogain, oracle or random to --planners")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     workers = args.workers or os.cpu_count() or 1
-    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers, args.floors)
+    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers, args.floors,
+                      args.rerun)
     report.failures = failures + report.failures
     learned = {p.name: p.checkpoints for p in planners if hasattr(p, "checkpoints")}
     recorded = {name: files[0] if len(files) == 1 else files for name, files in learned.items()}  # or an ensemble
@@ -251,7 +257,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
     runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
     print(f"nbvtrain evaluate: {plural(runs, 'reconstruction')} in {report.seconds:.1f} s; wrote "
-          f"{args.out / 'coverage.csv'}, {args.out / 'summary.md'} and {args.out / 'plots'}/")
+          f"{args.out / 'coverage.csv'}, {args.out / 'summary.md'} and {args.out / 'plots'}/"
+          + (f"; Rerun recordings in {args.rerun}/ (open one with: rerun {args.rerun}/MESH.rrd)"
+             if args.rerun is not None else ""))
     for name, reason in report.failures:
         print(f"nbvtrain evaluate: failed: {name}: {reason}", file=sys.stderr)
     return 1 if report.failures else 0
@@ -453,6 +461,9 @@ def build_parser() -> Parser:
                           help="the set cover of every start (floors.csv; the fewest scans any planner could need), "
                           "up to oracle.cover_time_limit seconds each (default on; --no-floors for the many "
                           "evaluations that choose a network)")
+    evaluate.add_argument("--rerun", type=Path, metavar="DIR", help="also write a Rerun recording per mesh, "
+                          "DIR/MESH.rrd, every planner's reconstructions side by side (open one with: rerun "
+                          "DIR/MESH.rrd; needs the viz extra; docs/rerun.md)")
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)

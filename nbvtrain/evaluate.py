@@ -50,7 +50,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 import yaml
@@ -63,7 +63,11 @@ from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
 from nbvdata.setcover import solve_cover
+from nbvdata.views import Pose
 from nbvtrain.planners import Observation, Planner
+
+if TYPE_CHECKING:
+    from nbvdata.record import RunLog
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
@@ -128,11 +132,14 @@ def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
     return {"cover_size": cover.size, "cover_bound": cover.bound, "cover_greedy": cover.greedy}
 
 
-def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int) -> list[dict]:
+def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int,
+                log: RunLog | None = None) -> list[dict]:
     """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
     seconds, the pose position, its overlap and the number of valid candidate views before it
     (None for the start). Only a privileged planner sees the ``Reconstruction``; one that reads
-    points gets every point scanned so far (``nbvdata.cloud``, kept as the generator keeps them)."""
+    points gets every point scanned so far (``nbvdata.cloud``, kept as the generator keeps them).
+    ``log``: also record every state, with the oracle's scores and the planner's next pose, in a
+    Rerun recording (``nbvdata.record``; it changes no row)."""
     noise, choices = np.random.SeedSequence(seed).spawn(2)
     planner.start(choices)
     state = Reconstruction(scene, None, np.random.default_rng(noise), points=planner.reads_points)
@@ -148,6 +155,8 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
             seconds = time.perf_counter() - started
             scores = scene.oracle.score(state.covered)
             valid_views = int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
+            if log is not None:  # the state the planner chose from
+                _log_state(log, scene, state, scan - 1, poses[-1], pose)
         before = state.covered.copy()
         seen = state.scan_pose(pose)
         if scan > 1:
@@ -158,17 +167,27 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
                      "observable_coverage": scene.oracle.observable_coverage(state.covered),
                      "seconds": seconds, "x": x, "y": y, "z": z, "overlap": pose_overlap,
                      "valid_views": valid_views})
+    if log is not None:
+        _log_state(log, scene, state, scans, poses[-1], None)
     return rows
+
+
+def _log_state(log: RunLog, scene: Scene, state: Reconstruction, scan: int, sensor: Pose, chosen: Pose | None) -> None:
+    """Record the state after ``scan`` scans, the last from ``sensor``, and the next pose."""
+    scores = scene.oracle.score(state.covered)
+    log.step(scan, state.grid.probabilities(), sensor, scene.oracle.observable_coverage(state.covered),
+             scores.gains, scores.overlaps, scores.best(scene.config.oracle.min_overlap), chosen)
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
              starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1,
-             floors: bool = True) -> EvaluationReport:
+             floors: bool = True, rerun: Path | None = None) -> EvaluationReport:
     """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
     then writes the files). ``workers`` > 1 evaluates meshes in that many processes (joblib loky,
     one thread each); the rows are the same, in the same order, as with one. ``floors`` False
     leaves out the set cover of every start (``start_floor``: up to ``oracle.cover_time_limit``
-    seconds each), e.g. for the many evaluations that choose a network."""
+    seconds each), e.g. for the many evaluations that choose a network. ``rerun``: a folder for
+    one Rerun recording per mesh, ``<mesh>.rrd`` (``evaluate_mesh``); the rows are the same."""
     from tqdm import tqdm
 
     began = time.perf_counter()
@@ -176,7 +195,8 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     with _mesh_runner(workers, bar) as run:
-        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors) for source in sources])
+        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors, rerun)
+                                      for source in sources])
         for source, (rows, floors, failure) in zip(sources, results):
             report.rows += rows
             report.floors += floors
@@ -189,12 +209,14 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
 
 
 def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
-                  seed: int, floors: bool = True, tick: Callable[[int], None] = lambda runs: None,
+                  seed: int, floors: bool = True, rerun: Path | None = None,
+                  tick: Callable[[int], None] = lambda runs: None,
                   threads: int = 0) -> tuple[list[dict], list[dict], str | None]:
     """One mesh's coverage.csv rows (planner by planner, start by start), its floors.csv rows (one
     per start; none without ``floors``), and why it could not be used (None if it could). ``tick(runs)`` counts
     reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
-    (parallel workers pass 1)."""
+    (parallel workers pass 1). ``rerun``: also write ``rerun``/<mesh>.rrd, every reconstruction
+    under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.record``)."""
     if threads:
         _limit_threads(threads)
     try:
@@ -208,13 +230,24 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                   | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
                   for number, first in enumerate(firsts)] if floors else []
     rows = []
-    for planner in planners:
-        for number, first in enumerate(firsts):
-            run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number))
-            rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
-                     for row in run]
-            tick(1)
+    with _recording(rerun, source.stem) as recording:
+        for planner in planners:
+            for number, first in enumerate(firsts):
+                log = recording.run([planner.name, f"start_{number}"], scene) if recording is not None else None
+                run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log)
+                rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
+                         for row in run]
+                tick(1)
     return rows, floor_rows, None
+
+
+def _recording(folder: Path | None, mesh: str) -> contextlib.AbstractContextManager:
+    """The Rerun recording ``folder``/<mesh>.rrd (``nbvdata.record.Recording``), or None."""
+    if folder is None:
+        return contextlib.nullcontext()
+    from nbvdata.record import Recording
+
+    return Recording(Path(folder) / f"{mesh}.rrd", mesh)
 
 
 def _limit_threads(threads: int) -> None:
