@@ -54,11 +54,12 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numba
 import numpy as np
 
+from nbvdata.cloud import reduce_cloud
 from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
@@ -66,6 +67,9 @@ from nbvdata.sensor import camera_rays
 from nbvdata.views import FIXED_LAYOUTS, Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
+
+if TYPE_CHECKING:
+    from nbvtrain.predict import Predictor
 
 PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "hybrid")
 LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
@@ -166,14 +170,20 @@ class LearnedPlanner(Planner):
         network: its scanned points) and (V,) bool scanned views, each standardised over the
         unscanned views (``nbvtrain.scores.standardise``), and the mean standardised again: an
         increasing map of the scores for one network."""
-        inputs = observation.probabilities
-        if self.reads_points:
-            if observation.points is None:
-                raise ValueError(f"{self.predictor.name} reads the scanned points: the run must keep them")
-            inputs = observation.points
+        if self.reads_points and observation.points is None:
+            raise ValueError(f"{self.predictor.name} reads the scanned points: the run must keep them")
         free = ~taken
-        members = [standardise(predictor.raw(inputs, taken)[0], free) for predictor in self.predictors]
+        members = [standardise(predictor.raw(self._inputs(predictor, observation), taken)[0], free)
+                   for predictor in self.predictors]
         return standardise(np.mean(members, axis=0), free)
+
+    def _inputs(self, predictor: Predictor, observation: Observation) -> np.ndarray:
+        """What ``predictor`` reads of the observation: the (n, n, n) grid, or the scanned points
+        reduced to its cloud size exactly as the generator stores them ((N, 3); zeros while the
+        scans have hit nothing, a state the generator labels too)."""
+        if not self.reads_points:
+            return observation.probabilities
+        return reduce_cloud(observation.points, predictor.points)[0]
 
     def next_view(self, observation: Observation) -> int:
         """A score network's choice as a candidate view index (``next_pose`` is its pose); a point

@@ -160,6 +160,23 @@ def test_the_planner_reduces_a_runs_points_as_the_generator_does(checkpoint):
     assert planner.next_view(observation) == expected and expected not in (4, 30)
 
 
+def test_a_state_whose_scans_hit_nothing_is_planned_as_the_generator_stores_it(checkpoint):
+    """A start view that sees nothing of a thin object leaves no points: the generator stores
+    zeros for such a state, and the planner must answer from the same cloud (it raised before)."""
+    config = _scene_config()
+    source = builtin_sources()[0]
+    scene = Scene.build(source.load(config.mesh), config, scene_rng(0, source.mesh_id))
+    planner = LearnedPlanner(checkpoint, config.views.radius, "scores", scene.views, config=config)
+    observation = Observation(np.full((32,) * 3, 0.5, dtype=np.float32), (scene.views[4],),
+                              np.zeros((0, 3), dtype=np.float32))
+    stored, count = reduce_cloud(observation.points, 64)
+    assert count == 0 and not stored.any()
+    taken = np.zeros(len(scene.views), dtype=bool)
+    taken[4] = True
+    expected = pick(planner.predictor.raw(stored, taken), taken[None])[0]
+    assert planner.next_view(observation) == expected != 4
+
+
 def test_evaluate_runs_the_point_network_without_repeating_a_view(checkpoint):
     config = _scene_config()
     planners = [LearnedPlanner(checkpoint, config.views.radius, "scores",
