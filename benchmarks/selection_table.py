@@ -110,8 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         ordered = sorted(table, key=lambda row: epoch_of(row["folder"]))
         best = max(range(len(ordered)), key=lambda i: (rank(ordered[i], args.by), -i))  # earliest of equals
         return 0 if len(ordered) - 1 - best >= args.stopped else 1
-    print(f"| folder | planner | objects | meshes | runs | mean % | shared % | procedural % | ms/decision | "
-          f"checkpoint |\n|---|---|---|---|---|---|---|---|---|---|")
+    print("| folder | planner | objects | meshes | runs | mean % | shared % | procedural % | ms/decision | "
+          "checkpoint |\n|---|---|---|---|---|---|---|---|---|---|")
     best = max(table, key=lambda row: rank(row, args.by))
     for row in sorted(table, key=lambda row: (str(row["folder"]), row["planner"])):
         cells = [f"{row[key]:.1f}" if row[key] is not None else "-" for key in ("all", "shared", "procedural")]

@@ -167,8 +167,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
         report = generate(sources, args.out, config, failures, show_progress=args.progress, policy=policy,
                           rerun_runs=args.rerun_runs or 0)
     except KeyboardInterrupt:
-        print(f"nbvdata generate: interrupted; finished shards are kept, run the same command "
-              f"again to continue", file=sys.stderr)
+        print("nbvdata generate: interrupted; finished shards are kept, run the same command "
+              "again to continue", file=sys.stderr)
         return 130
     rate = report.samples / report.seconds if report.seconds else 0.0
     others = len(report.others_done) + len(report.others_running)

@@ -175,7 +175,7 @@ def format_summary(summary: Summary, top: int = 10) -> str:
                   f"label entropy {entropy:.2f} nats (uniform over the used views: {np.log(len(counts)):.2f})",
                   f"gain of the NBV: median {_median(summary.best_gain, '.2f')} of the observable surface; "
                   f"valid views per state: median {_median(summary.valid_share, '.0f')}",
-                  f"most frequent NBVs (view: samples): " + ", ".join(
+                  "most frequent NBVs (view: samples): " + ", ".join(
                       f"{view}: {count}" for view, count in summary.nbv_counts.most_common(top))]
     lines += _moves(summary)
     lines += format_covers(summary.covers)

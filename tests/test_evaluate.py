@@ -20,7 +20,7 @@ from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import Shard, shard_files
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, final_coverage, front_view,
+from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, front_view,
                                plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
 from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,

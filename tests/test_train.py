@@ -15,7 +15,6 @@ import pytest
 import torch
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import GridConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.shards import Shard, ShardError
 from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_indices
