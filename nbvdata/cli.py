@@ -108,8 +108,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                   f"coverage {100 * total:5.1f}%  observable {100 * observable:5.1f}%  "
                   f"scan+integrate {1e3 * elapsed:6.1f} ms  {grid.counts()}")
             if run is not None:
-                _log_demo_step(run, scene, grid, step, int(view), pack_bits(covered),
-                               int(views[step]) if step < len(views) else None)
+                run.scored_step(step, grid.probabilities(), scene.views[int(view)], pack_bits(covered),
+                                scene.views[int(views[step])] if step < len(views) else None)
     if recording is not None:
         print(f"wrote {recording.path}")
     out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
@@ -126,15 +126,6 @@ def _record_module(flag: str):
     except ImportError as error:
         raise UsageError(f"{flag}: {error}") from None
     return record
-
-
-def _log_demo_step(run, scene, grid, step: int, view: int, covered: np.ndarray, following: int | None) -> None:
-    """Record the demo's state after ``step`` scans, the last from candidate ``view``, with the
-    oracle's scores of what the scans covered (``covered``: (W,) packed) and the next view."""
-    scores = scene.oracle.score(covered)
-    run.step(step, grid.probabilities(), scene.views[view], scene.oracle.observable_coverage(covered),
-             scores.gains, scores.overlaps, scores.best(scene.config.oracle.min_overlap),
-             scene.views[following] if following is not None else None)
 
 
 def cmd_generate(args: argparse.Namespace) -> int:

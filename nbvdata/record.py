@@ -141,6 +141,7 @@ class RunLog:
     def __init__(self, stream: rr.RecordingStream, root: str, scene: Scene):
         self.stream, self.root, self.scene = stream, root, scene
         self.grid = scene.config.scene_grid
+        self.centres = scene.new_grid().voxel_centres()  # (n, n, n, 3) metres
         self.path: list[np.ndarray] = []  # the scanned positions, (3,) each
         mesh = scene.object.mesh
         stream.log(root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -183,18 +184,25 @@ class RunLog:
         self._log_arrow("nbv", views[nbv] if nbv is not None else None, NBV)
         stream.log(f"{root}/coverage", rr.Scalars(100.0 * coverage))
 
+    def scored_step(self, scan: int, probabilities: np.ndarray, sensor: Pose, covered: np.ndarray,
+                    chosen: Pose | None = None) -> None:
+        """``step`` with the scene oracle's scores and coverage of the state whose scans covered
+        ``covered`` ((W,) packed reference points)."""
+        oracle = self.scene.oracle
+        scores = oracle.score(covered)
+        self.step(scan, probabilities, sensor, oracle.observable_coverage(covered), scores.gains, scores.overlaps,
+                  scores.best(self.scene.config.oracle.min_overlap), chosen)
+
     def _log_grid(self, probabilities: np.ndarray) -> None:
         """Occupied voxels as boxes, unknown ones as points, at the voxel centres."""
         resolution = self.grid.resolution
-        origin = -(self.grid.size // 2) * resolution
-        occupied = np.argwhere(probabilities > 0.5)
-        certainty = ((probabilities[tuple(occupied.T)] - 0.5) / 0.5)[:, None]
+        occupied = probabilities > 0.5
+        certainty = ((probabilities[occupied] - 0.5) / 0.5)[:, None]
         colours = np.round(OCCUPIED_LOW + certainty * (OCCUPIED_HIGH - OCCUPIED_LOW)).astype(np.uint8)
         self.stream.log(f"{self.root}/grid/occupied",
-                        rr.Boxes3D(centers=origin + (occupied + 0.5) * resolution, half_sizes=[[resolution / 2] * 3],
+                        rr.Boxes3D(centers=self.centres[occupied], half_sizes=[[resolution / 2] * 3],
                                    colors=colours, fill_mode="TransparentFillMajorWireframe"))
-        unknown = np.argwhere(probabilities == 0.5)
-        self.stream.log(f"{self.root}/grid/unknown", rr.Points3D(origin + (unknown + 0.5) * resolution,
+        self.stream.log(f"{self.root}/grid/unknown", rr.Points3D(self.centres[probabilities == 0.5],
                                                                  colors=UNKNOWN, radii=resolution / 6))
 
     def _log_arrow(self, name: str, pose: Pose | None, colour: tuple[int, int, int]) -> None:

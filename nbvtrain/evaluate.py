@@ -63,7 +63,6 @@ from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
 from nbvdata.setcover import solve_cover
-from nbvdata.views import Pose
 from nbvtrain.planners import Observation, Planner
 
 if TYPE_CHECKING:
@@ -156,7 +155,7 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
             scores = scene.oracle.score(state.covered)
             valid_views = int(((scores.overlaps >= min_overlap) & (scores.new > 0)).sum())
             if log is not None:  # the state the planner chose from
-                _log_state(log, scene, state, scan - 1, poses[-1], pose)
+                log.scored_step(scan - 1, state.grid.probabilities(), poses[-1], state.covered, pose)
         before = state.covered.copy()
         seen = state.scan_pose(pose)
         if scan > 1:
@@ -168,15 +167,8 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
                      "seconds": seconds, "x": x, "y": y, "z": z, "overlap": pose_overlap,
                      "valid_views": valid_views})
     if log is not None:
-        _log_state(log, scene, state, scans, poses[-1], None)
+        log.scored_step(scans, state.grid.probabilities(), poses[-1], state.covered)
     return rows
-
-
-def _log_state(log: RunLog, scene: Scene, state: Reconstruction, scan: int, sensor: Pose, chosen: Pose | None) -> None:
-    """Record the state after ``scan`` scans, the last from ``sensor``, and the next pose."""
-    scores = scene.oracle.score(state.covered)
-    log.step(scan, state.grid.probabilities(), sensor, scene.oracle.observable_coverage(state.covered),
-             scores.gains, scores.overlaps, scores.best(scene.config.oracle.min_overlap), chosen)
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
