@@ -309,3 +309,35 @@ def test_the_cosine_schedule_falls_from_lr_to_near_zero():
     rates = [learning_rate(config, epoch) for epoch in range(1, 11)]
     assert rates[0] == 1e-3 and all(a > b > 0 for a, b in zip(rates, rates[1:])) and rates[-1] < 3e-5
     assert learning_rate(TrainConfig(lr=1e-3, epochs=10), 7) == 1e-3
+
+
+@pytest.mark.parametrize("name", ["nbvnet-4-3", "nbvscore-fc3"])
+def test_channels_last_training_is_the_same_arithmetic_in_another_order(name):
+    """fit lays grid networks out channels-last on the CPU for speed: the step must be the same
+    sums in another order (equal to float32 rounding), and the layout must really change."""
+    from nbvtrain.models import build_model
+    from nbvtrain.train import _inputs, _memory_layout
+
+    torch.manual_seed(0)
+    views = np.eye(3)[np.arange(8) % 3] * np.where(np.arange(8) < 4, 1, -1)[:, None] if "score" in name else None
+    plain = build_model(name, views=views)
+    fast = _memory_layout(build_model(name, views=views), torch.device("cpu"))
+    fast.load_state_dict(plain.state_dict())
+    convolutions = [p for p in fast.parameters() if p.dim() == 5]
+    assert convolutions and all(p.is_contiguous(memory_format=torch.channels_last_3d) for p in convolutions)
+    codes = np.random.default_rng(0).integers(0, 3, (4, 32, 32, 32)).astype(np.uint8)
+    palette = torch.tensor([0.12, 0.5, 0.97])
+    grids = _inputs(codes, palette, "grid", torch.device("cpu"))
+    assert grids.is_contiguous(memory_format=torch.channels_last_3d)
+    taken = torch.zeros(len(codes), 8, dtype=torch.bool) if views is not None else None
+    run = (lambda model, x: model(x, taken)) if views is not None else (lambda model, x: model(x))
+    for model in (plain, fast):
+        model.eval()  # no dropout: its masks are drawn in memory order, so they differ between layouts
+        run(model, grids).square().mean().backward()
+    for (layer, a), b in zip(plain.named_parameters(), fast.parameters()):
+        scale = float(a.grad.abs().max())
+        assert scale > 0, layer
+        np.testing.assert_allclose(a.grad.numpy(), b.grad.numpy(), rtol=0, atol=1e-4 * scale, err_msg=layer)
+    with torch.no_grad():
+        np.testing.assert_allclose(run(plain, grids.contiguous()).numpy(), run(fast, grids).numpy(), rtol=1e-4,
+                                   atol=1e-5)
