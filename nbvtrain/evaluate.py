@@ -205,7 +205,8 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                   tick: Callable[[int], None] = lambda runs: None,
                   threads: int = 0) -> tuple[list[dict], list[dict], str | None]:
     """One mesh's coverage.csv rows (planner by planner, start by start), its floors.csv rows (one
-    per start; none without ``floors``), and why it could not be used (None if it could). ``tick(runs)`` counts
+    per start; none without ``floors``), and why it could not be used (None if it could: a mesh that
+    fails to load, or on which a planner raises, gives no rows). ``tick(runs)`` counts
     reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
     (parallel workers pass 1). ``rerun``: also write ``rerun``/<mesh>.rrd, every reconstruction
     under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.record``)."""
@@ -223,10 +224,16 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                   for number, first in enumerate(firsts)] if floors else []
     rows = []
     with _recording(rerun, source.stem) as recording:
-        for planner in planners:
+        for index, planner in enumerate(planners):
             for number, first in enumerate(firsts):
                 log = recording.run([planner.name, f"start_{number}"], scene) if recording is not None else None
-                run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log)
+                try:
+                    run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log)
+                except Exception as error:  # a planner's bug (a user's policy too): this mesh fails, the rest go on
+                    tick((len(planners) - index) * len(firsts) - number)
+                    return [], [], (f"planner {planner.name} raised {type(error).__name__} from start view {first}: "
+                                    f"{error} (the mesh's rows are left out, so that every planner is compared "
+                                    "on the same meshes)")
                 rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
                          for row in run]
                 tick(1)

@@ -180,6 +180,24 @@ def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys
     assert {r["mesh"] for r in _rows(out / "coverage.csv")} == {"mug"}
 
 
+
+def test_a_planner_that_raises_fails_its_mesh_and_the_others_go_on(meshes, tmp_path, capsys):
+    policy = tmp_path / "fragile.py"
+    policy.write_text("CALLS = []\n\n\ndef policy(observation):\n    CALLS.append(1)\n"
+                      "    if len(CALLS) == 1:\n        raise ZeroDivisionError('a bug in the policy')\n"
+                      "    return 0\n")
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes), "--planners", f"random,{policy}:policy", "--scans", "3",
+                 "--config", str(SMOKE), "--workers", "1", "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    header, *failures = (out / "failures.tsv").read_text().splitlines()
+    assert len(failures) == 1 and failures[0].split("\t")[0].endswith("mug.obj")
+    assert "ZeroDivisionError from start view" in failures[0] and "a bug in the policy" in failures[0]
+    assert err.count("a bug in the policy") == 1
+    rows = _rows(out / "coverage.csv")
+    assert {r["mesh"] for r in rows} == {"ring"}  # the mug's random rows left out too: same meshes for all
+    assert {r["planner"] for r in rows} == {"random", f"{policy}:policy"}
+
 class Tripwire:
     """Wraps an object; while ``armed``, touching any of its attributes fails the test."""
 
