@@ -38,6 +38,7 @@ if [ "$SMOKE" = 1 ]; then
     LIST=$OUT/meshes.txt
     TEST_MESHES=$OUT/test-meshes.txt
     SCENE=(--config configs/smoke.yaml)             # generate, evaluate: the tiny scene of the tests
+    CLOUDS=()
     EVAL=(--scans 3 --starts 0 --seed 1)
     BATCH=(--batch-size 16)
 else
@@ -50,6 +51,7 @@ else
     LIST=configs/train-meshes-$VERSION.txt
     TEST_MESHES=$MESHES/test/
     SCENE=()                                        # the default (fitted) scene, as train-meshes 1.1.0
+    CLOUDS=(--set state.points=1024)                # every state's cloud too, as the published version
     EVAL=(--scans 10 --starts 2 --seed 1)           # as the released models' card
     BATCH=(--batch-size 64)
 fi
@@ -68,16 +70,9 @@ smoke_lists() {  # 2 shared train meshes and 2 procedural objects; 2 test object
 
 stage_data() {
     [ "$SMOKE" = 1 ] && smoke_lists
-    if [ "$SMOKE" != 1 ] && [ -d data/train-explore ] && [ ! -e "$DATA" ]; then
-        # train-meshes 1.1.0's shards: the same settings and seeds give the same units, byte for byte,
-        # so hard links of them are 550 meshes done (nbvdata verify checks them at publish time)
-        log "reusing the 549 meshes of data/train-explore (hard links)"
-        mkdir -p "$DATA"
-        cp -l data/train-explore/*.h5 data/train-explore/config.yaml "$DATA"/
-    fi
     log "generate: $LIST -> $DATA"
     nice -n 10 nbvdata generate --meshes "$LIST" --out "$DATA" --runs-per-mesh 14 --explore 0.25 \
-        --workers "$WORKERS" "${SCENE[@]}"
+        --workers "$WORKERS" "${SCENE[@]}" "${CLOUDS[@]}"
 }
 
 stage_publish() {
