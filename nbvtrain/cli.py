@@ -292,8 +292,15 @@ def cmd_release(args: argparse.Namespace) -> int:
 
     runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression)) if folder}
     if not runs:
-        raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit)")
-    written, removed = release(runs, args.evaluation, args.out)
+        raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit, "
+                          "or checkpoint files of them)")
+    notes = None
+    if args.notes is not None:
+        try:
+            notes = args.notes.read_text()
+        except (OSError, UnicodeDecodeError) as error:
+            raise ConfigError(f"--notes {args.notes}: cannot read it ({error}): pass a markdown file") from None
+    written, removed = release(runs, args.evaluation, args.out, notes)
     for path in written:
         print(f"nbvtrain release: wrote {path}")
     for path in removed:
@@ -469,10 +476,15 @@ def build_parser() -> Parser:
     evaluate.set_defaults(func=cmd_evaluate)
 
     release = sub.add_parser("release", help="write released models and their model card from fit runs",
-                             description="Copy the best epochs of fit runs as float16 checkpoints with a model card "
-                             "and reference answers (what ships in nbvtrain/released/).")
-    release.add_argument("--scores", type=Path, help="run folder of a candidate-score network (nbvscore-*)")
-    release.add_argument("--regression", type=Path, help="run folder of a regression network (nbvnet-*)")
+                             description="Copy the best epochs of fit runs (or chosen checkpoints of them) as float16 "
+                             "checkpoints with a model card and reference answers (what ships in nbvtrain/released/).")
+    release.add_argument("--scores", type=Path, help="run folder of a candidate-score network (nbvscore-*: its "
+                         "best.pt, the lowest validation loss), or a checkpoint file of such a run (e.g. the snapshot "
+                         "the validation objects chose)")
+    release.add_argument("--regression", type=Path, help="run folder of a regression network (nbvnet-*), or a "
+                         "checkpoint file of such a run")
+    release.add_argument("--notes", type=Path, help="markdown file: how the released networks were chosen, a section "
+                         "of the card (default: the card's section from the last release, if any)")
     release.add_argument("--evaluation", type=Path, nargs="*", default=[], help="output folders of nbvtrain "
                          "evaluate whose summaries go into the card")
     release.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "released",

@@ -8,9 +8,11 @@ made and what they score; ``reference.json`` names each task's checkpoint file a
 answer for ``reference_grid()``, which the tests reproduce from the installed files.
 
 ``nbvtrain release --scores RUN --regression RUN --evaluation DIR`` writes them from run folders
-of ``nbvtrain fit``: the best epoch's weights as float16 (half the bytes; they load as float32),
-without the optimiser state, each named by its network (``nbvscore-fc3.pt``), into the package's
-folder or ``--out``; the card names the files relative to itself.
+of ``nbvtrain fit`` (the best epoch's weights: lowest validation loss) or from checkpoint files of
+such runs (an epoch's snapshot, e.g. the one the validation objects chose in closed loop), as
+float16 (half the bytes; they load as float32), without the optimiser state, each named by its
+network (``nbvscore-fc3.pt``), into the package's folder or ``--out``; the card names the files
+relative to itself, and ``--notes FILE`` adds how they were chosen.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from nbvdata.config import ConfigError
 
 TASKS = ("scores", "regression")
 CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
+NOTES = "How they were chosen"  # the card's section of ``release(notes=...)``
 KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
 
 
@@ -85,11 +88,14 @@ def reference_answer(checkpoint: Path) -> dict:
     return answer
 
 
-def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> tuple[list[Path], list[Path]]:
-    """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit), each named
-    by its network, the reference answers and the model card (with the summary.md tables of
-    ``evaluations``, output folders of nbvtrain evaluate) into ``out``. A task released before
-    into ``out`` under another network's name is replaced: (files written, files removed)."""
+def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
+            notes: str | None = None) -> tuple[list[Path], list[Path]]:
+    """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit, meaning its
+    best.pt, or a checkpoint file of such a run), each named by its network, the reference answers
+    and the model card (with ``notes``, markdown on how they were chosen, and the summary.md tables
+    of ``evaluations``, output folders of nbvtrain evaluate) into ``out``. A task released before
+    into ``out`` and not now keeps its file and its section of the card; one released before under
+    another network's name is replaced: (files written, files removed)."""
     import torch
 
     from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
@@ -101,24 +107,28 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> tuple[
                    if task in before and task not in runs and (out / before[task]).is_file()}
     except (OSError, ValueError):
         answers = {}
-    written, sections = [], []
-    for task, run in runs.items():
-        state = load_checkpoint(run / "best.pt", f"train one with nbvtrain fit --out {run}")
+    earlier = _card_sections(out / CARD)
+    sections = {task: earlier[task] for task in answers if task in earlier}
+    notes = notes if notes is not None else earlier.get(NOTES, "").split("\n", 1)[-1]  # kept with the models kept
+    written = []
+    for task, given in runs.items():
+        run, checkpoint = run_of(given)
+        state = load_checkpoint(checkpoint, f"train one with nbvtrain fit --out {run}")
         if state.get("task") != task:
             raise ConfigError(f"{run}: a {state.get('task')} network, not a {task} one")
         slim = {key: state[key] for key in KEEP if key in state}
         slim["state_dict"] = {key: value.half() if value.is_floating_point() else value
                               for key, value in state["state_dict"].items()}
-        slim["released_from"] = str(run)
+        slim["released_from"] = str(checkpoint)
         path = out / f"{state['model']}.pt"
         save_checkpoint(path, slim)
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
-        sections.append(_card_section(task, run, state, path))
+        sections[task] = _card_section(task, run, checkpoint, state, path)
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
-    card.write_text(_card(sections, answers, evaluations, torch.__version__,
-                          packaged=out.resolve() == released_folder().resolve()))
+    card.write_text(_card([sections[task] for task in TASKS if task in sections], answers, evaluations, torch.__version__,
+                          packaged=out.resolve() == released_folder().resolve(), notes=notes))
     kept = {path.name for path in written}
     superseded = [out / before[task] for task in runs if task in before and before[task] not in kept]
     for path in superseded:
@@ -126,14 +136,42 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path) -> tuple[
     return written + [out / REFERENCE, card], superseded
 
 
-def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
+def run_of(given: Path) -> tuple[Path, Path]:
+    """(run folder, checkpoint) of a ``--scores``/``--regression`` argument: a run folder of nbvtrain
+    fit (its best.pt), or a checkpoint file in or below one (the nearest folder above it holding the
+    run's data.json)."""
+    if given.is_dir():
+        return given, given / "best.pt"
+    for folder in given.parents:
+        if (folder / "data.json").is_file():
+            return folder, given
+    raise ConfigError(f"{given}: neither a run folder of nbvtrain fit nor a checkpoint file inside one (no data.json "
+                      "in a folder above it): pass the run folder, or a checkpoint of runs/NAME/")
+
+
+def _card_sections(card: Path) -> dict[str, str]:
+    """An existing card's sections that a release of some tasks keeps: task -> its ``## task: ...``
+    section, and ``NOTES`` -> how they were chosen (none when there is no card)."""
+    text = card.read_text() if card.is_file() else ""
+    sections = {}
+    for block in text.split("\n## ")[1:]:
+        title = block.split("\n", 1)[0]
+        key = title.split(":", 1)[0] if ":" in title else title
+        if key in (*TASKS, NOTES):
+            sections[key] = "## " + block.strip("\n") + "\n"
+    return sections
+
+
+def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path) -> str:
     from nbvtrain.checkpoint import load_checkpoint
 
     data = json.loads((run / "data.json").read_text())
     manifest = data.get("manifest")
     last = run / "last.pt"
     history = load_checkpoint(last)["history"] if last.is_file() else state["history"]  # the whole run
-    best = state["history"][-1]  # best.pt is saved at its epoch
+    best = state["history"][-1]  # a checkpoint is saved at its epoch
+    chosen = ("best epoch (lowest validation loss)" if checkpoint == run / "best.pt"
+              else f"epoch `{checkpoint.relative_to(run)}` of the run")
     seconds = sum(row["seconds"] for row in history)
     config = state["config"]
     keys = ("model", "epochs", "batch_size", "lr", "lr_schedule", "dropout_from", "dropout", "augment",
@@ -146,9 +184,9 @@ def _card_section(task: str, run: Path, state: dict, path: Path) -> str:
                      f"{data['split']['kind']} split: {data['train_samples']} training and {data['val_samples']} "
                      "validation samples.")
     lines += [f"- Settings: {settings}.",
-              f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time, best epoch (lowest "
-              f"validation loss) {best['epoch']}, released.",
-              f"- Validation at the best epoch: loss {best['val_loss']:.4f}, gain ratio "
+              f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time; released: the {chosen}, "
+              f"epoch {best['epoch']}.",
+              f"- Validation samples at the released epoch: loss {best['val_loss']:.4f}, gain ratio "
               f"{best.get('val_gain_ratio', float('nan')):.3f}, invalid picks "
               f"{100 * best.get('val_invalid_share', float('nan')):.1f} %, angle to the label "
               f"{best['val_angle_deg']:.1f} deg, MSE {best['val_mse']:.4f}.", ""]
@@ -176,7 +214,8 @@ def _cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
-def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str, packaged: bool) -> str:
+def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str, packaged: bool,
+          notes: str | None = None) -> str:
     """The model card; ``packaged``: written into the package's folder, whose models commands use
     by default (elsewhere, they are used with --checkpoint)."""
     use = ("the candidate-score network `nbvtrain evaluate`, `predict` and `plan` use by default" if packaged else
@@ -188,6 +227,8 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
              f"Machine: {_cpu_name()}, {os.cpu_count()} cores, no GPU; "
              f"torch {torch_version} (CPU), Python {platform.python_version()}.", ""]
     lines += sections
+    if notes:
+        lines += [f"## {NOTES}", "", notes.strip(), ""]
     lines += ["## Reference answers", "",
               "For `nbvtrain.release.reference_grid()` with nothing scanned (tests/test_release.py checks that the "
               "installed package reproduces them):", "", "```json", json.dumps(answers, indent=1, allow_nan=False),

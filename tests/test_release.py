@@ -41,7 +41,7 @@ def test_the_card_names_the_data_and_the_figures():
     manifest = json.loads(path.read_text())
     sha = hashlib.sha256(path.read_bytes()).hexdigest()
     assert f"{manifest['name']} {manifest['version']} (manifest sha256 {sha})" in card
-    for phrase in ("gain ratio", "min of wall time, best epoch", "## Evaluation", "| object | scores |", "Machine:"):
+    for phrase in ("gain ratio", "min of wall time", "## Evaluation", "| object | scores |", "Machine:"):
         assert phrase in card
 
 
@@ -113,3 +113,31 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert nbvtrain(["release", "--scores", str(runs["nbvscore-3"]), "--out", str(out)]) == 0
     assert released_files(out) == {"regression": "nbvnet-3-5.pt", "scores": "nbvscore-3.pt"}
     assert sorted(path.name for path in out.glob("*.pt")) == ["nbvnet-3-5.pt", "nbvscore-3.pt"]
+
+    # a chosen snapshot of a run (not its best.pt), with notes on how it was chosen; the regression
+    # network released before keeps its file and its section of the card, and the notes stay with it
+    snapshot = runs["nbvscore-3"] / "snapshots" / "epoch-001.pt"
+    snapshot.parent.mkdir()
+    snapshot.write_bytes((runs["nbvscore-3"] / "last.pt").read_bytes())
+    notes = tmp_path / "notes.md"
+    notes.write_text("Chosen on the validation objects in closed loop.\n")
+    regression_section = card_section(out / CARD, "regression")
+    assert nbvtrain(["release", "--scores", str(snapshot), "--notes", str(notes), "--out", str(out)]) == 0
+    card = (out / CARD).read_text()
+    assert "released: the epoch `snapshots/epoch-001.pt` of the run, epoch 1." in card
+    assert "## How they were chosen\n\nChosen on the validation objects in closed loop." in card
+    assert card_section(out / CARD, "regression") == regression_section
+    assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == str(snapshot)
+    assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-3"]), "--out", str(out)]) == 0
+    card = (out / CARD).read_text()
+    assert "Chosen on the validation objects in closed loop." in card and "## scores: nbvscore-3" in card
+    assert card.index("## scores:") < card.index("## regression:") < card.index("## How they were chosen")
+    assert "released: the best epoch (lowest validation loss), epoch 1." in card_section(out / CARD, "regression")
+    assert nbvtrain(["release", "--scores", str(tmp_path / "notes.md"), "--out", str(out)]) == 2
+    assert "neither a run folder of nbvtrain fit nor a checkpoint file inside one" in capsys.readouterr().err
+
+
+def card_section(card: Path, task: str) -> str:
+    text = card.read_text()
+    start = text.index(f"## {task}: ")
+    return text[start:text.index("\n## ", start)]
