@@ -183,9 +183,11 @@ def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Pat
         lines.append(f"- Data: {manifest['name']} {manifest['version']} (manifest sha256 {manifest['sha256']}), "
                      f"{data['split']['kind']} split: {data['train_samples']} training and {data['val_samples']} "
                      "validation samples.")
+    machines = sorted({row["machine"] for row in history if row.get("machine")})
+    where = f" on {' and '.join(machines)}" if machines else ""
     lines += [f"- Settings: {settings}.",
-              f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time; released: the {chosen}, "
-              f"epoch {best['epoch']}.",
+              f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time{where}; released: the "
+              f"{chosen}, epoch {best['epoch']}.",
               f"- Validation samples at the released epoch: loss {best['val_loss']:.4f}, gain ratio "
               f"{best.get('val_gain_ratio', float('nan')):.3f}, invalid picks "
               f"{100 * best.get('val_invalid_share', float('nan')):.1f} %, angle to the label "

@@ -23,6 +23,7 @@ import io
 import json
 import math
 import os
+import platform
 import signal
 import sys
 import threading
@@ -50,7 +51,7 @@ from nbvtrain.models import NBVNet, ScoreNet, architecture, build_model, class_p
 from nbvtrain.scores import pick, score_loss
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
-           "val_invalid_share", "seconds", "train_samples_per_s")
+           "val_invalid_share", "seconds", "train_samples_per_s", "machine")
 EVAL_BATCH = 500
 
 
@@ -111,6 +112,22 @@ def resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise ConfigError("device=cuda but torch sees no GPU: use --device cpu or auto")
     return torch.device(name)
+
+
+def machine(device: torch.device) -> str:
+    """What an epoch ran on, for metrics.csv and the model card: "cpu: <model name> (N threads)" or
+    "cuda: <GPU name>"."""
+    if device.type == "cuda":
+        return f"cuda: {torch.cuda.get_device_name(device)}"
+    name = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                name = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{device.type}: {name} ({plural(torch.get_num_threads(), 'thread')})"
 
 
 def load_run_config(out: Path) -> TrainConfig:
@@ -295,7 +312,8 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                 train_seconds = time.perf_counter() - started
                 row = {"epoch": epoch, "train_loss": total / len(order),
                        **_validate(model, data, taken, val_idx, palette, classes, loss_fn, config, device),
-                       "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds}
+                       "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds,
+                       "machine": machine(device)}
                 history.append(row)
                 _save(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
                 if row["val_loss"] < best:

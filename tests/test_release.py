@@ -125,6 +125,7 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert nbvtrain(["release", "--scores", str(snapshot), "--notes", str(notes), "--out", str(out)]) == 0
     card = (out / CARD).read_text()
     assert "released: the epoch `snapshots/epoch-001.pt` of the run, epoch 1." in card
+    assert "min of wall time on cpu: " in card_section(out / CARD, "scores")  # the machine it was trained on
     assert "## How they were chosen\n\nChosen on the validation objects in closed loop." in card
     assert card_section(out / CARD, "regression") == regression_section
     assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == str(snapshot)

@@ -53,6 +53,8 @@ def test_fit_writes_a_complete_run_folder(shards, tmp_path):
     for row in checkpoint["history"]:
         assert 0 < row["val_gain_ratio"] <= 1 and 0 <= row["val_angle_deg"] <= 180
         assert row["val_mse"] == pytest.approx(row["val_loss"])
+        assert row["machine"].startswith("cpu: ") and row["machine"].endswith("(1 thread)")  # FAST: --threads 1
+    assert rows[0].endswith(",machine") and rows[1].endswith("(1 thread)")
     data = json.loads((run / "data.json").read_text())
     assert data["train_samples"] + data["val_samples"] == data["samples"] == 72
     assert (run / "config.yaml").read_text().startswith("model: nbvnet-3-3")
