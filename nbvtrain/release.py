@@ -224,10 +224,11 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
            "the candidate-score network (use a file here with `--checkpoint`, or `--score-checkpoint` for "
            "`nbvtrain evaluate`)")
     lines = ["# Model card: the released next-best-view networks", "",
-             f"Two networks trained on the same published dataset with the same CPU budget: {use}, and the paper's "
-             "regression network for comparison. Weights are float16 (loaded as float32).", "",
-             f"Machine: {_cpu_name()}, {os.cpu_count()} cores, no GPU; "
-             f"torch {torch_version} (CPU), Python {platform.python_version()}.", ""]
+             f"Two networks: {use}, and the paper's regression network for comparison. Each section names its "
+             "data, settings, training time and the machine it was trained on. Weights are float16 (loaded as "
+             "float32).", "",
+             f"Released on: {_cpu_name()}, {os.cpu_count()} cores; "
+             f"torch {torch_version}, Python {platform.python_version()}.", ""]
     lines += sections
     if notes:
         lines += [f"## {NOTES}", "", notes.strip(), ""]
