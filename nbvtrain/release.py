@@ -206,20 +206,12 @@ def _evaluate_arguments(path: Path) -> list[str]:
     return block
 
 
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str, packaged: bool,
           notes: str | None = None) -> str:
     """The model card; ``packaged``: written into the package's folder, whose models commands use
     by default (elsewhere, they are used with --checkpoint)."""
+    from nbvtrain.train import cpu_name
+
     use = ("the candidate-score network `nbvtrain evaluate`, `predict` and `plan` use by default" if packaged else
            "the candidate-score network (use a file here with `--checkpoint`, or `--score-checkpoint` for "
            "`nbvtrain evaluate`)")
@@ -227,7 +219,7 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
              f"Two networks: {use}, and the paper's regression network for comparison. Each section names its "
              "data, settings, training time and the machine it was trained on. Weights are float16 (loaded as "
              "float32).", "",
-             f"Released on: {_cpu_name()}, {os.cpu_count()} cores; "
+             f"Released on: {cpu_name()}, {os.cpu_count()} cores; "
              f"torch {torch_version}, Python {platform.python_version()}.", ""]
     lines += sections
     if notes:

@@ -119,15 +119,18 @@ def machine(device: torch.device) -> str:
     "cuda: <GPU name>"."""
     if device.type == "cuda":
         return f"cuda: {torch.cuda.get_device_name(device)}"
-    name = platform.processor() or platform.machine()
+    return f"{device.type}: {cpu_name()} ({plural(torch.get_num_threads(), 'thread')})"
+
+
+def cpu_name() -> str:
+    """The CPU's model name (/proc/cpuinfo), else what ``platform`` knows."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-                break
+                return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    return f"{device.type}: {name} ({plural(torch.get_num_threads(), 'thread')})"
+    return platform.processor() or platform.machine()
 
 
 def load_run_config(out: Path) -> TrainConfig:
