@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 import numpy as np
 import yaml
 
-from nbvdata.config import SimConfig, to_dict
+from nbvdata.config import ConfigError, SimConfig, to_dict
 from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.generate import MeshSource
 from nbvdata.manifest import find_part_meshes, load_manifest
@@ -229,6 +229,8 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                 log = recording.run([planner.name, f"start_{number}"], scene) if recording is not None else None
                 try:
                     run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log)
+                except ConfigError:  # a policy that breaks its contract (e.g. returns no view): a user error
+                    raise
                 except Exception as error:  # a planner's bug (a user's policy too): this mesh fails, the rest go on
                     tick((len(planners) - index) * len(firsts) - number)
                     return [], [], (f"planner {planner.name} raised {type(error).__name__} from start view {first}: "

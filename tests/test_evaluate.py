@@ -253,8 +253,9 @@ def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, 
     report = _run_guarded(config, scene, planners, meshes, monkeypatch)
     assert len(report.rows) == len(planners) * 3 and not report.failures
     assert isinstance(planners[-1], OraclePlanner)  # privileged: it may read the simulation
-    with pytest.raises(AssertionError, match="a robot planner read oracle.view_counts"):
-        _run_guarded(config, scene, [Cheat(scene)], meshes, monkeypatch)
+    caught = _run_guarded(config, scene, [Cheat(scene)], meshes, monkeypatch)  # the mesh fails, the run goes on
+    assert not caught.rows and len(caught.failures) == 1
+    assert "raised AssertionError" in caught.failures[0][1] and "a robot planner read oracle.view_counts" in caught.failures[0][1]
 
 
 def test_scanning_a_candidate_pose_live_equals_the_cached_view(scene):
