@@ -125,6 +125,7 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
         sections[task] = _card_section(task, run, checkpoint, state, path)
+    answers = {task: answers[task] for task in TASKS if task in answers}  # the card's order, whatever came last
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
     card.write_text(_card([sections[task] for task in TASKS if task in sections], answers, evaluations, torch.__version__,

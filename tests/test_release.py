@@ -129,6 +129,7 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert "min of wall time on cpu: " in card_section(out / CARD, "scores")  # the machine it was trained on
     assert "## How they were chosen\n\nChosen on the validation objects in closed loop." in card
     assert card_section(out / CARD, "regression") == regression_section
+    assert list(json.loads((out / REFERENCE).read_text())) == list(TASKS)  # the card's order, scores released last
     assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == str(snapshot)
     assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-3"]), "--out", str(out)]) == 0
     card = (out / CARD).read_text()
