@@ -8,7 +8,8 @@
 #
 #   benchmarks/selection.sh data                  # generate (resumable: run it again after a kill)
 #   benchmarks/selection.sh publish               # manifests/train-meshes-1.2.0.json, then verify it
-#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3 or regression;
+#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3, regression or
+#                                                 # regression-near-best (nbvnet-4-3 on the near-best loss);
 #                                                 # run it again until it says the validation stopped improving
 #   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
 #   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
@@ -91,11 +92,13 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
         scores-fc3) echo "--model nbvscore-fc3 --score-loss regression --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
         scores-3) echo "--model nbvscore-3 --score-loss regression --augment --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
-        *) echo "unknown network $1: scores-fc3, scores-3 or regression" >&2; exit 2 ;;
+        # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
+        regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
+        *) echo "unknown network $1: scores-fc3, scores-3, regression or regression-near-best" >&2; exit 2 ;;
     esac
 }
 
-planner_of() { [ "$1" = regression ] && echo "regression --checkpoint" || echo "scores --score-checkpoint"; }
+planner_of() { case $1 in regression*) echo "regression --checkpoint" ;; *) echo "scores --score-checkpoint" ;; esac; }
 
 epochs_done() { [ -f "$1/metrics.csv" ] && echo $(( $(wc -l < "$1/metrics.csv") - 1 )) || echo 0; }
 
@@ -189,7 +192,7 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3 or regression}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression or regression-near-best}" ;;
     select) stage_select ;;
     test) stage_test ;;
     table) table "$VAL"/* ;;
@@ -202,5 +205,5 @@ case ${1:-} in
         stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
         stage_select
         FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
-    *) sed -n '2,22p' "$0" >&2; exit 2 ;;
+    *) sed -n '2,23p' "$0" >&2; exit 2 ;;
 esac

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.commandline import (Integer, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
+from nbvdata.commandline import (Integer, Number, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
                                   non_negative_int, positive_float, positive_int)
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
@@ -31,7 +31,8 @@ INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torc
                  "--index-url https://download.pytorch.org/whl/cpu)")
 
 FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "lr": "lr",
-             "lr_schedule": "lr_schedule", "score_loss": "score_loss", "dropout": "dropout",
+             "lr_schedule": "lr_schedule", "score_loss": "score_loss",
+             "regression_loss": "regression_loss", "near_best": "near_best", "dropout": "dropout",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
              "augment": "augment", "seed": "seed", "device": "device", "threads": "threads",
              "mixed_scenes": "mixed_scenes"}
@@ -338,6 +339,10 @@ def build_parser() -> Parser:
                      "decay to 0 over the epochs")
     fit.add_argument("--score-loss", choices=["listwise", "regression", "argmax"], help="score networks "
                      "(nbvscore-*): the loss over every candidate view's gain (default listwise)")
+    fit.add_argument("--regression-loss", choices=["label", "near-best"], help="regression networks: squared "
+                     "error to the label (paper, default) or to the nearest near-best view")
+    fit.add_argument("--near-best", type=Number(0.0, 1.0, low_open=True), help="near-best loss: a view within this share of the best "
+                     "gain is a target (default 0.9)")
     fit.add_argument("--dropout", type=fraction, help="dropout probability (default 0.5)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")

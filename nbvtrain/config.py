@@ -35,6 +35,11 @@ class TrainConfig:
     """Score networks only: the loss over the full score vectors (``nbvtrain.scores``)."""
     score_temperature: float = 0.1
     """Score networks, listwise loss: the target is softmax((gain / best gain) / temperature)."""
+    regression_loss: Literal["label", "near-best"] = "label"
+    """Regression networks only: label (paper: squared error to the labelled NBV), or near-best: to the
+    nearest view whose gain is >= ``near_best`` x the best (``nbvtrain.scores.near_best_loss``)."""
+    near_best: float = 0.9
+    """Regression, near-best loss: the share of the best eligible gain a view needs to be a target."""
     split: Literal["random", "mesh"] = "random"
     """random: a per-sample split (the paper's 80/20); mesh: whole objects held out."""
     val_fraction: float = 0.2
@@ -65,6 +70,7 @@ class TrainConfig:
         _check(self.batch_size >= 1, f"batch_size={self.batch_size}: must be >= 1")
         _check(self.lr > 0, f"lr={self.lr}: must be > 0")
         _check(self.score_temperature > 0, f"score_temperature={self.score_temperature}: must be > 0")
+        _check(0 < self.near_best <= 1, f"near_best={self.near_best}: must lie in (0, 1]")
 
         _check(0 < self.val_fraction < 1, f"val_fraction={self.val_fraction}: must lie in (0, 1)")
         _check(self.threads >= 0, f"threads={self.threads}: must be >= 0")

@@ -48,7 +48,7 @@ from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_sp
                            split_indices, to_grids)
 from nbvtrain.metrics import evaluate, format_ratio
 from nbvtrain.models import NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count
-from nbvtrain.scores import pick, score_loss
+from nbvtrain.scores import near_best_loss, pick, score_loss
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
            "val_invalid_share", "seconds", "train_samples_per_s", "machine")
@@ -166,7 +166,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     data = load_shards(shards, config.memory_limit_gb, config.mixed_scenes, clouds=config.model if points else None,
                        grids=not points)
     try:
-        taken = _view_states(data, config.model)
+        taken = _view_states(data, config)
         if resumed is None:
             torch.manual_seed(config.seed)
             model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units)
@@ -219,15 +219,17 @@ def _restored(config: TrainConfig, checkpoint: dict, out: Path,
     return model, optimizer, checkpoint["history"], views
 
 
-def _view_states(data: ShardSet, model: str) -> np.ndarray | None:
-    """(N, V) bool view states for a score network (None for the others); ShardError when the
-    shards lack what one learns from."""
-    if architecture(model).task != "scores":
+def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
+    """(N, V) bool view states for a score network or the near-best regression loss (None for the
+    others); ShardError when the shards lack what the network learns from."""
+    task = architecture(config.model).task
+    if not (task == "scores" or (task == "regression" and config.regression_loss == "near-best")):
         return None
     if data.gains is None:
-        raise ShardError(f"{model} learns from every candidate view's gain and overlap, and these shards do not all "
+        learns = config.model if task == "scores" else f"{config.model} with regression_loss=near-best"
+        raise ShardError(f"{learns} learns from every candidate view's gain and overlap, and these shards do not all "
                          "hold them for one common view set (imported data has none): train it on shards written by "
-                         "nbvdata generate")
+                         "nbvdata generate" + ("" if task == "scores" else ", or use regression_loss=label"))
     return load_view_states(data.paths)
 
 
@@ -347,10 +349,12 @@ def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, dat
             grids = _inputs(codes, palette, model.inputs, device)
             if model.task == "scores":
                 loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
-            else:
-                targets = torch.from_numpy(targets).to(device)
+            elif model.task == "regression":
                 output = model(grids)
-                loss = loss_fn(output, targets if model.task == "regression" else _labels(targets, classes))
+                loss = _regression_loss(output, targets, data, taken, index, turned, loss_fn, config)
+            else:
+                output = model(grids)
+                loss = loss_fn(output, _labels(torch.from_numpy(targets).to(device), classes))
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -378,6 +382,21 @@ def _score_loss(model: ScoreNet, grids: torch.Tensor, data: ShardSet, taken: np.
     turned = None if turns is None or not turns.any() else torch.from_numpy(turns).to(device)
     scores = model(grids, scanned, turned)
     return score_loss(scores, gains, valid, scanned, config.score_loss, config.score_temperature), scores, scanned
+
+
+def _regression_loss(output: torch.Tensor, targets: np.ndarray, data: ShardSet, taken: np.ndarray | None,
+                     index: np.ndarray, turns: np.ndarray, loss_fn: nn.Module, config: TrainConfig) -> torch.Tensor:
+    """The loss of a regression network's (B, 3) ``output`` on the samples ``index``, whose grids and
+    (B, 3) ``targets`` were turned by ``turns``: ``loss_fn`` (squared error) to the targets, or with
+    ``config.regression_loss`` near-best ``nbvtrain.scores.near_best_loss``."""
+    device = output.device
+    labels = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float32)).to(device)
+    if config.regression_loss == "label":
+        return loss_fn(output, labels)
+    gains, valid, scanned = (torch.from_numpy(array[index]).to(device) for array in (data.gains, data.valid, taken))
+    units = torch.from_numpy(data.view_units).to(device, torch.float32)
+    return near_best_loss(output, labels, gains, valid, scanned, units, torch.from_numpy(turns).to(device),
+                          config.near_best)
 
 
 def _epoch_seed(seed: int, epoch: int) -> int:
@@ -459,7 +478,9 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
                 continue
             output = model(grids)
             if model.task == "regression":
-                loss += loss_fn(output, targets).item() * len(index)
+                no_turns = np.zeros(len(index), dtype=np.int64)
+                loss += _regression_loss(output, data.targets[index], data, taken, index, no_turns, loss_fn,
+                                         config).item() * len(index)
                 predictions.append(output.float().cpu().numpy())
             else:
                 loss += loss_fn(output, _labels(targets, classes)).item() * len(index)

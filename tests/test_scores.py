@@ -11,7 +11,7 @@ import torch
 from nbvdata.views import scanned_views, sphere_positions
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import MODELS, ScoreNet, build_model, parameter_count
-from nbvtrain.scores import SCORE_LOSSES, pick, score_loss, targets
+from nbvtrain.scores import SCORE_LOSSES, near_best_loss, pick, score_loss, targets
 
 
 def test_the_registry_builds_the_score_family():  # the point network's: tests/test_pointnet.py
@@ -134,3 +134,61 @@ def test_a_quarter_turn_of_the_grid_turns_each_views_side_alike(rng):
     alone = [model.head(features[i:i + 1], taken[:1], torch.tensor([t])) for i, t in enumerate((0, 3, 1, 3))]
     torch.testing.assert_close(together, torch.cat(alone))
     torch.testing.assert_close(model.head(features, taken, torch.zeros(4, dtype=torch.long)), model.head(features, taken))
+
+
+def _near_case():
+    """5 views on the axes: view 0 is the best eligible one (the label), view 2 gains 0.95 of it
+    (near-best at share 0.9), view 1 gains more but breaks the overlap rule, view 3 was scanned,
+    view 4 gains 0.5 of the best."""
+    units = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]])
+    gains = torch.tensor([[1.0, 2.0, 0.95, 1.5, 0.5]])
+    valid = torch.tensor([[True, False, True, True, True]])
+    taken = torch.tensor([[False, False, False, True, False]])
+    return units, units[:1], gains, valid, taken
+
+
+def test_the_near_best_loss_takes_the_nearest_near_best_view():
+    units, label, gains, valid, taken = _near_case()
+    for output, target in (([0.9, 0.1, 0.0], 0), ([-0.8, 0.2, 0.1], 2), ([0.0, 1.0, 0.0], 0), ([0.0, -1.0, 0.0], 0),
+                           ([0.1, 0.0, 0.9], 0)):  # views 1, 3 and 4 are never targets
+        output = torch.tensor([output])
+        expected = ((output - units[target]) ** 2).mean()
+        torch.testing.assert_close(near_best_loss(output, label, gains, valid, taken, units, share=0.9), expected)
+    # share 1: only the best view, the label's squared error (nn.MSELoss)
+    output = torch.tensor([[-0.8, 0.2, 0.1]])
+    torch.testing.assert_close(near_best_loss(output, label, gains, valid, taken, units, share=1.0),
+                               torch.nn.MSELoss()(output, label))
+    torch.testing.assert_close(near_best_loss(output, label, gains, valid, taken, units, share=0.4),
+                               ((output - units[2]) ** 2).mean())  # view 4 is nearer, but not nearest
+
+
+def test_the_near_best_loss_turns_its_views_with_the_grid(rng):
+    from nbvtrain.models import quarter_turns
+
+    units = torch.from_numpy(sphere_positions(40, 1.0, "hemisphere")).float()
+    gains = torch.from_numpy(rng.random((4, 40))).float()
+    valid, taken = torch.ones(4, 40, dtype=torch.bool), torch.from_numpy(rng.random((4, 40)) < 0.2)
+    output = torch.from_numpy(rng.normal(size=(4, 3)) * 0.5).float()
+    labels = torch.zeros(4, 3)
+    plain = [near_best_loss(output[i:i + 1], labels[i:i + 1], gains[i:i + 1], valid[i:i + 1], taken[i:i + 1], units,
+                            share=0.8) for i in range(4)]
+    turns = torch.tensor([0, 1, 2, 3])
+    turned = torch.from_numpy(np.stack([quarter_turns(output[i:i + 1].double().numpy(), i)[0]
+                                        for i in range(4)])).float()
+    torch.testing.assert_close(near_best_loss(turned, labels, gains, valid, taken, units, turns, share=0.8),
+                               torch.stack(plain).mean())
+    # a turn changes the loss of an output left unturned
+    assert not torch.isclose(near_best_loss(output, labels, gains, valid, taken, units, turns, share=0.8),
+                             torch.stack(plain).mean())
+
+
+def test_a_state_without_a_gain_learns_the_label_with_finite_gradients():
+    units, label, gains, valid, taken = _near_case()
+    gains = torch.cat([gains, torch.zeros(1, 5)])
+    valid, taken, labels = valid.repeat(2, 1), taken.repeat(2, 1), torch.tensor([[1.0, 0, 0], [0, 0, 1.0]])
+    output = torch.tensor([[0.5, 0.5, 0.0], [0.0, 0.5, 0.5]], requires_grad=True)
+    loss = near_best_loss(output, labels, gains, valid, taken, units, share=0.9)
+    loss.backward()
+    expected = (((output[0] - units[0]) ** 2).mean() + ((output[1] - labels[1]) ** 2).mean()) / 2
+    torch.testing.assert_close(loss, expected)
+    assert torch.isfinite(output.grad).all() and (output.grad[1] != 0).any()

@@ -343,3 +343,37 @@ def test_channels_last_training_is_the_same_arithmetic_in_another_order(name):
     with torch.no_grad():
         np.testing.assert_allclose(run(plain, grids.contiguous()).numpy(), run(fast, grids).numpy(), rtol=1e-4,
                                    atol=1e-5)
+
+
+def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_path, capsys):
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    near = ["--regression-loss", "near-best", "--near-best", "0.8", "--augment", *FAST]
+    assert main(["fit", str(shards), "--epochs", "2", "--out", str(straight), *near]) == 0
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(resumed), *near]) == 0
+    assert main(["fit", "--resume", "--epochs", "2", "--out", str(resumed), "--no-progress"]) == 0
+    a, b = _weights(straight), _weights(resumed)
+    assert all(torch.equal(a[key], b[key]) for key in a)
+    checkpoint = torch.load(straight / "best.pt", weights_only=True)
+    assert checkpoint["config"]["regression_loss"] == "near-best" and checkpoint["config"]["near_best"] == 0.8
+    label = tmp_path / "label"
+    assert main(["fit", str(shards), "--epochs", "2", "--augment", "--out", str(label), *FAST]) == 0
+    assert not all(torch.equal(a[key], _weights(label)[key]) for key in a)  # another loss, other weights
+    # the near-best validation loss is at most the label's squared error for the same output
+    history = checkpoint["history"]
+    assert all(row["val_loss"] <= row["val_mse"] + 1e-9 for row in history)
+    # imported data (no gains): refused before anything is written
+    from nbvdata.legacy import import_legacy
+    directions = np.random.default_rng(0).normal(size=(6, 3))
+    np.save(tmp_path / "volumes.npy", np.full((6, 32 ** 3), 0.5))
+    np.save(tmp_path / "poses.npy", np.concatenate([0.4 * directions / np.linalg.norm(directions, axis=1, keepdims=True),
+                                                    np.zeros((6, 3))], axis=1))
+    import_legacy(tmp_path / "volumes.npy", tmp_path / "poses.npy", tmp_path / "imported", rows_per_shard=4,
+                  show_progress=False)
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "imported"), "--epochs", "1", "--out", str(tmp_path / "no"), *near]) == 2
+    err = capsys.readouterr().err
+    assert "regression_loss=near-best learns from every candidate view's gain" in err and "regression_loss=label" in err
+    assert not (tmp_path / "no").exists()
+    with pytest.raises(SystemExit) as stopped:
+        main(["fit", str(shards), "--near-best", "0", "--out", str(tmp_path / "zero"), *FAST])
+    assert stopped.value.code == 2 and "--near-best: must be a number in (0, 1]" in capsys.readouterr().err
