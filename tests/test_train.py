@@ -361,6 +361,15 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
     # the near-best validation loss is at most the label's squared error for the same output
     history = checkpoint["history"]
     assert all(row["val_loss"] <= row["val_mse"] + 1e-9 for row in history)
+    # benchmarks/regression_answers.py reads the run's validation states and compares the two losses
+    answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(straight),
+                              str(straight / "best.pt"), str(label / "best.pt"), "--samples", "10"],
+                             capture_output=True, text=True, check=True).stdout.splitlines()
+    assert answers[0].startswith("10 validation states of") and len(answers) == 6
+    for line in answers[2:5]:
+        norm, ratio, resultant, views = (float(x) for x in line.split()[-4:])
+        assert 0 <= norm <= 3 ** 0.5 and 0 <= ratio <= 1 and 0 <= resultant <= 1 and 1 <= views <= 10
+    assert answers[4].split()[-3] == "1.000"  # the labels are the best views
     # imported data (no gains): refused before anything is written
     from nbvdata.legacy import import_legacy
     directions = np.random.default_rng(0).normal(size=(6, 3))

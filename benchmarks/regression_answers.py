@@ -1,0 +1,86 @@
+"""What regression networks answer on a run's validation states, offline: how committed their
+answers are and how good the candidate view nearest to each answer is, beside a random view.
+
+For each checkpoint (regression networks trained on the same shards), on a seeded sample of the
+validation states that ``RUN/data.json`` records (its shards and ``val_indices``):
+
+- norm: the median length of the (3,) answer (tanh outputs; a unit target gives 1, the mean of
+  two opposite good views 0),
+- gain ratio: the mean over states of the gain of the candidate view nearest to the answer over
+  the best eligible gain (0 for a view that breaks the overlap rule or was scanned),
+- resultant: the length of the mean answer direction (1: one direction for every state; the
+  labels' own is printed beside),
+- views: how many candidate views the answers land on.
+
+The random row is the mean gain ratio of a uniformly random unscanned view. The closed loop
+(``nbvtrain evaluate``) decides; this says why it goes as it does.
+
+    python benchmarks/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nbvtrain.data import load_shards, load_view_states, to_grids
+from nbvtrain.predict import Predictor
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="a run folder of nbvtrain fit (its data.json)")
+    parser.add_argument("checkpoints", type=Path, nargs="+", help="regression checkpoints to compare")
+    parser.add_argument("--samples", type=int, default=1500)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+
+    recorded = json.loads((args.run / "data.json").read_text())
+    paths = [Path(p) for p in recorded["shards"]]
+    val = np.array(recorded["val_indices"])
+    chosen = np.sort(np.random.default_rng(args.seed).choice(val, min(args.samples, len(val)), replace=False))
+    data = load_shards(paths, grids=False)
+    try:
+        taken = load_view_states(paths)[chosen]
+        gains = np.where(data.valid[chosen] & ~taken, data.gains[chosen], 0.0)
+        best = gains.max(axis=1)
+        ranked = best > 0
+        codes = data.grids.take(chosen)
+        palette = torch.from_numpy(data.palette)
+        units = data.view_units
+        labels = data.targets[chosen]
+    finally:
+        data.close()
+    rows = np.arange(len(chosen))
+    print(f"{len(chosen)} validation states of {args.run} ({int(ranked.sum())} with a gain left)")
+    print(f"{'answers':<50} {'norm':>6} {'gain ratio':>10} {'resultant':>9} {'views':>6}")
+    for checkpoint in args.checkpoints:
+        model = Predictor(checkpoint).model.eval()
+        if model.task != "regression":
+            raise SystemExit(f"{checkpoint}: a {model.task} network, not a regression one")
+        with torch.inference_mode():
+            answers = np.concatenate([model(to_grids(codes[i:i + 100], palette)).float().numpy()
+                                      for i in range(0, len(codes), 100)])
+        norms = np.linalg.norm(answers, axis=1)
+        nearest = np.argmax(answers @ units.T, axis=1)
+        ratio = gains[rows, nearest][ranked] / best[ranked]
+        resultant = np.linalg.norm((answers / np.maximum(norms, 1e-12)[:, None]).mean(axis=0))
+        print(f"{str(Path(*checkpoint.parts[-4:])):<50} {np.median(norms):6.2f} {ratio.mean():10.3f} {resultant:9.2f} "
+              f"{len(np.unique(nearest)):6d}")
+    random = np.array([gains[i, ~taken[i]].mean() / best[i] for i in np.flatnonzero(ranked)])
+    label_views = np.argmax(labels @ units.T, axis=1)
+    label_ratio = (gains[rows, label_views][ranked] / best[ranked]).mean()
+    print(f"{'labels':<50} {np.median(np.linalg.norm(labels, axis=1)):6.2f} {label_ratio:10.3f} "
+          f"{np.linalg.norm(labels.mean(axis=0)):9.2f} "
+          f"{len(np.unique(label_views)):6d}")
+    print(f"{'random unscanned view':<50} {'-':>6} {random.mean():10.3f} {'-':>9} {'-':>6}")
+
+
+if __name__ == "__main__":
+    main()
