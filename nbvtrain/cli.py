@@ -341,8 +341,8 @@ def build_parser() -> Parser:
                      "(nbvscore-*): the loss over every candidate view's gain (default listwise)")
     fit.add_argument("--regression-loss", choices=["label", "near-best"], help="regression networks: squared "
                      "error to the label (paper, default) or to the nearest near-best view")
-    fit.add_argument("--near-best", type=Number(0.0, 1.0, low_open=True), help="near-best loss: a view within this share of the best "
-                     "gain is a target (default 0.9)")
+    fit.add_argument("--near-best", type=Number(0.0, 1.0, low_open=True), help="near-best loss: a view "
+                     "within this share of the best gain is a target (default 0.9)")
     fit.add_argument("--dropout", type=fraction, help="dropout probability (default 0.5)")
     fit.add_argument("--dropout-from", help="dropout from this layer to the end: conv1..conv4, fc, fc2.., none "
                      "(default conv3)")

@@ -71,6 +71,10 @@ class TrainConfig:
         _check(self.lr > 0, f"lr={self.lr}: must be > 0")
         _check(self.score_temperature > 0, f"score_temperature={self.score_temperature}: must be > 0")
         _check(0 < self.near_best <= 1, f"near_best={self.near_best}: must lie in (0, 1]")
+        regression = [name for name, arch in MODELS.items() if arch.task == "regression"]
+        _check(self.regression_loss == "label" or self.model in regression,
+               f"regression_loss={self.regression_loss} with {self.model}: a loss of the regression networks "
+               f"({', '.join(regression)}); drop it")
 
         _check(0 < self.val_fraction < 1, f"val_fraction={self.val_fraction}: must lie in (0, 1)")
         _check(self.threads >= 0, f"threads={self.threads}: must be >= 0")

@@ -374,8 +374,8 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
     from nbvdata.legacy import import_legacy
     directions = np.random.default_rng(0).normal(size=(6, 3))
     np.save(tmp_path / "volumes.npy", np.full((6, 32 ** 3), 0.5))
-    np.save(tmp_path / "poses.npy", np.concatenate([0.4 * directions / np.linalg.norm(directions, axis=1, keepdims=True),
-                                                    np.zeros((6, 3))], axis=1))
+    units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    np.save(tmp_path / "poses.npy", np.concatenate([0.4 * units, np.zeros((6, 3))], axis=1))
     import_legacy(tmp_path / "volumes.npy", tmp_path / "poses.npy", tmp_path / "imported", rows_per_shard=4,
                   show_progress=False)
     capsys.readouterr()
@@ -383,6 +383,10 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
     err = capsys.readouterr().err
     assert "regression_loss=near-best learns from every candidate view's gain" in err and "regression_loss=label" in err
     assert not (tmp_path / "no").exists()
+    # a loss of the regression networks only
+    assert main(["fit", str(shards), "--regression-loss", "near-best", "--out", str(tmp_path / "s"), *SCORE]) == 2
+    assert ("regression_loss=near-best with nbvscore-3: a loss of the regression networks (nbvnet-3-3, "
+            in capsys.readouterr().err)
     with pytest.raises(SystemExit) as stopped:
         main(["fit", str(shards), "--near-best", "0", "--out", str(tmp_path / "zero"), *FAST])
     assert stopped.value.code == 2 and "--near-best: must be a number in (0, 1]" in capsys.readouterr().err
