@@ -83,13 +83,13 @@ def near_best_loss(output: torch.Tensor, labels: torch.Tensor, gains: torch.Tens
     ``nbvtrain.models.quarter_turns``), ``share`` in (0, 1]."""
     relative, ranked = targets(gains.float(), valid, taken)
     near = (relative >= share) & (valid & ~taken) & ranked.unsqueeze(1)
-    positions = units.to(output.dtype).unsqueeze(0).expand(len(output), -1, -1)
-    if turns is not None:
-        cos = torch.tensor([1.0, 0.0, -1.0, 0.0], dtype=output.dtype, device=output.device)[turns].unsqueeze(1)
-        sin = torch.tensor([0.0, 1.0, 0.0, -1.0], dtype=output.dtype, device=output.device)[turns].unsqueeze(1)
-        x, y = positions[..., 0], positions[..., 1]
-        positions = torch.stack([cos * x - sin * y, sin * x + cos * y, positions[..., 2]], dim=2)
-    errors = ((output.unsqueeze(1) - positions) ** 2).mean(dim=2).masked_fill(~near, float("inf"))
+    back = output
+    if turns is not None:  # the output turned back: distances to the views are those to the turned views
+        cos = torch.tensor([1.0, 0.0, -1.0, 0.0], dtype=output.dtype, device=output.device)[turns]
+        sin = torch.tensor([0.0, -1.0, 0.0, 1.0], dtype=output.dtype, device=output.device)[turns]
+        x, y = output[:, 0], output[:, 1]
+        back = torch.stack([cos * x - sin * y, sin * x + cos * y, output[:, 2]], dim=1)
+    errors = ((back.unsqueeze(1) - units.to(output.dtype)) ** 2).mean(dim=2).masked_fill(~near, float("inf"))
     label_error = ((output - labels.to(output.dtype)) ** 2).mean(dim=1)
     return torch.where(ranked, errors.min(dim=1).values, label_error).mean()
 
