@@ -7,7 +7,8 @@ validation states that ``RUN/data.json`` records (its shards and ``val_indices``
 - norm: the median length of the (3,) answer (tanh outputs; a unit target gives 1, the mean of
   two opposite good views 0),
 - gain ratio: the mean over states of the gain of the candidate view nearest to the answer over
-  the best eligible gain (0 for a view that breaks the overlap rule or was scanned),
+  the best eligible gain (0 for a view that breaks the overlap rule or was scanned:
+  ``nbvtrain.metrics.gain_ratio`` with the scanned views counted invalid),
 - resultant: the length of the mean answer direction (1: one direction for every state; the
   labels' own is printed beside),
 - views: how many candidate views the answers land on.
@@ -28,6 +29,7 @@ import numpy as np
 import torch
 
 from nbvtrain.data import load_shards, load_view_states, to_grids
+from nbvtrain.metrics import gain_ratio, nearest_view, unit
 from nbvtrain.predict import Predictor
 
 
@@ -47,19 +49,27 @@ def main() -> None:
     chosen = np.sort(np.random.default_rng(args.seed).choice(val, min(args.samples, len(val)), replace=False))
     data = load_shards(paths, grids=False)
     try:
-        taken = load_view_states(paths)[chosen]
-        gains = np.where(data.valid[chosen] & ~taken, data.gains[chosen], 0.0)
-        best = gains.max(axis=1)
-        ranked = best > 0
+        scanned = load_view_states(paths)[chosen]
+        eligible = data.valid[chosen] & ~scanned  # passes the overlap rule, not scanned
+        gains = data.gains[chosen]
         codes = data.grids.take(chosen)
         palette = torch.from_numpy(data.palette)
         units = data.view_units
         labels = data.targets[chosen]
     finally:
         data.close()
-    rows = np.arange(len(chosen))
+    best = np.where(eligible, gains, 0.0).max(axis=1)
+    ranked = best > 0
     print(f"{len(chosen)} validation states of {args.run} ({int(ranked.sum())} with a gain left)")
     print(f"{'answers':<50} {'norm':>6} {'gain ratio':>10} {'resultant':>9} {'views':>6}")
+
+    def row(name: str, answers: np.ndarray) -> None:
+        norms = np.linalg.norm(answers, axis=1)
+        ratio = gain_ratio(answers, gains, eligible, units)[0].mean()
+        resultant = np.linalg.norm(unit(answers).mean(axis=0))
+        views = len(np.unique(nearest_view(answers, units)))
+        print(f"{name:<50} {np.median(norms):6.2f} {ratio:10.3f} {resultant:9.2f} {views:6d}")
+
     for checkpoint in args.checkpoints:
         model = Predictor(checkpoint).model.eval()
         if model.task != "regression":
@@ -67,19 +77,11 @@ def main() -> None:
         with torch.inference_mode():
             answers = np.concatenate([model(to_grids(codes[i:i + 100], palette)).float().numpy()
                                       for i in range(0, len(codes), 100)])
-        norms = np.linalg.norm(answers, axis=1)
-        nearest = np.argmax(answers @ units.T, axis=1)
-        ratio = gains[rows, nearest][ranked] / best[ranked]
-        resultant = np.linalg.norm((answers / np.maximum(norms, 1e-12)[:, None]).mean(axis=0))
-        print(f"{str(Path(*checkpoint.parts[-4:])):<50} {np.median(norms):6.2f} {ratio.mean():10.3f} {resultant:9.2f} "
-              f"{len(np.unique(nearest)):6d}")
-    random = np.array([gains[i, ~taken[i]].mean() / best[i] for i in np.flatnonzero(ranked)])
-    label_views = np.argmax(labels @ units.T, axis=1)
-    label_ratio = (gains[rows, label_views][ranked] / best[ranked]).mean()
-    print(f"{'labels':<50} {np.median(np.linalg.norm(labels, axis=1)):6.2f} {label_ratio:10.3f} "
-          f"{np.linalg.norm(labels.mean(axis=0)):9.2f} "
-          f"{len(np.unique(label_views)):6d}")
-    print(f"{'random unscanned view':<50} {'-':>6} {random.mean():10.3f} {'-':>9} {'-':>6}")
+        row(str(Path(*checkpoint.parts[-4:])), answers)
+    row("labels", labels)
+    relative = np.where(eligible, gains, 0.0)[ranked] / best[ranked, None]  # an ineligible view scores 0
+    random = np.mean([ratios[~taken].mean() for ratios, taken in zip(relative, scanned[ranked])])
+    print(f"{'random unscanned view':<50} {'-':>6} {random:10.3f} {'-':>9} {'-':>6}")
 
 
 if __name__ == "__main__":
