@@ -11,6 +11,9 @@
 #   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3, regression or
 #                                                 # regression-near-best (nbvnet-4-3 on the near-best loss);
 #                                                 # run it again until it says the validation stopped improving
+#   benchmarks/selection.sh dagger                # a DAgger round: DAGGER_POLICY's runs on the training
+#                                                 # meshes, every state labelled exactly; then fit regression-dagger
+#                                                 # (near-best, started from DAGGER_POLICY, the round added)
 #   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
 #   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
 #   benchmarks/selection.sh table                 # every validation result so far, as one table
@@ -57,6 +60,10 @@ else
     BATCH=(--batch-size 64)
 fi
 MANIFEST=$MANIFESTS/$NAME-$VERSION.json
+# the DAgger round: the policy it rolls (the best regression snapshot on the validation objects when it was
+# made: the near-best run's epoch 5) and where its shards go
+DAGGER_POLICY=${DAGGER_POLICY:-$OUT/fit/regression-near-best/snapshots/epoch-005.pt}
+DAGGER=${DAGGER:-$DATA-dagger1}
 VAL=$OUT/val                                        # one folder per evaluation on the validation objects
 log() { printf '\n== %s\n' "$*" >&2; }
 
@@ -87,6 +94,12 @@ every setting (benchmarks/selection.sh). Made with: nbvdata generate --meshes co
     nbvdata verify "$MANIFEST"
 }
 
+stage_dagger() {  # 4 runs per training mesh from other start views (seed 1), every move the policy's
+    log "DAgger round: $DAGGER_POLICY on the training part of $NAME $VERSION -> $DAGGER"
+    nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$DAGGER_POLICY" \
+        --runs-per-mesh 4 --seed 1 --workers "$WORKERS" --out "$DAGGER" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
+}
+
 fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a run extended is the same run)
     case $1 in
         scores-fc3) echo "--model nbvscore-fc3 --score-loss regression --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
@@ -94,7 +107,9 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
         # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
         regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
-        *) echo "unknown network $1: scores-fc3, scores-3, regression or regression-near-best" >&2; exit 2 ;;
+        regression-dagger) echo "$(fit_flags regression-near-best) --add-train $DAGGER --init $DAGGER_POLICY" ;;
+        *) echo "unknown network $1: scores-fc3, scores-3, regression, regression-near-best or regression-dagger" >&2
+           exit 2 ;;
     esac
 }
 
@@ -192,7 +207,8 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression or regression-near-best}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression, regression-near-best or regression-dagger}" ;;
+    dagger) stage_dagger ;;
     select) stage_select ;;
     test) stage_test ;;
     table) table "$VAL"/* ;;
@@ -205,5 +221,5 @@ case ${1:-} in
         stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
         stage_select
         FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
-    *) sed -n '2,23p' "$0" >&2; exit 2 ;;
+    *) sed -n '2,26p' "$0" >&2; exit 2 ;;
 esac

@@ -130,7 +130,7 @@ def _record_module(flag: str):
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
-    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, builtin_sources, generate, mesh_sources
+    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, builtin_sources, generate, mesh_sources, part_sources
     from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
@@ -146,7 +146,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
     policy = None
     if args.policy is not None:
         policy = PolicySource.from_path(args.policy, args.policy_provider or DEFAULT_PROVIDER)
-    if args.meshes is None:
+    if args.manifest is not None:
+        if args.part is None:
+            raise UsageError("--manifest needs --part train, val or test: the part of its mesh split to generate from")
+        sources, failures = part_sources(args.manifest, args.part, args.meshes)[0], []
+    elif args.part is not None:
+        raise UsageError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
+                         "whose mesh split it names")
+    elif args.meshes is None:
         sources, failures = builtin_sources(config.mesh), []
     else:
         sources, failures = mesh_sources(args.meshes)
@@ -414,7 +421,12 @@ def build_parser() -> Parser:
 
     gen = sub.add_parser("generate", help="simulate labelled reconstructions of meshes into HDF5 shards")
     gen.add_argument("--meshes", type=Path, help="folder of mesh files (searched recursively), one mesh "
-                     "file, or a .txt list of files; default: the built-in shapes")
+                     "file, or a .txt list of files; with --manifest, the folder its meshes lie in or below; default: "
+                     "the built-in shapes")
+    gen.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): generate from "
+                     "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256 (a "
+                     "DAgger round on its training meshes: --part train)")
+    gen.add_argument("--part", help="with --manifest: train, val or test")
     gen.add_argument("--out", type=Path, default=Path("nbv_dataset"), help="output folder (default nbv_dataset)")
     _add_config_options(gen)
     gen.add_argument("--workers", type=non_negative_int, help="parallel workers, 0 = one per core (generate.workers)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -276,6 +277,10 @@ NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0,
 # Building dataclasses from plain data
 
 
+EXPONENT_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+"""A number in exponent notation, which YAML 1.1 reads as a string unless its mantissa has a dot (1e-5)."""
+
+
 def from_dict(cls: type, data: dict[str, Any] | None, where: str = "") -> Any:
     """Build dataclass ``cls`` from a nested dict, rejecting unknown keys and wrong types."""
     data = {} if data is None else data
@@ -316,6 +321,8 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where}={value!r}: must be an integer")
         return value
     if hint is float:
+        if isinstance(value, str) and EXPONENT_NUMBER.fullmatch(value.strip()):
+            return float(value)  # 1e-5: YAML 1.1 (PyYAML) reads a number without a dot as text
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}={value!r}: must be a number")
         return float(value)

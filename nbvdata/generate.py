@@ -40,6 +40,7 @@ from nbvdata import __version__
 from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials, write_atomic
 from nbvdata.config import ConfigError, GenerateConfig, MeshConfig, SimConfig
 from nbvdata.episode import Mover, RunRecord, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
+from nbvdata.manifest import find_part_meshes, load_manifest
 from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
 from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
@@ -98,6 +99,18 @@ def mesh_sources(where: Path) -> tuple[list[MeshSource], list[tuple[str, str]]]:
         except OSError as error:
             failures.append((str(path), f"cannot read the file: {error.strerror or error}"))
     return sources, failures
+
+
+def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) -> tuple[list[MeshSource], dict]:
+    """The meshes of ``part`` (train, val or test) of a published version's mesh split, each file
+    found in or below ``mesh_root`` by its name and sha256 (``nbvdata.manifest.find_part_meshes``:
+    ManifestError naming a missing or changed one), and what to record of the choice:
+    {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
+    published = load_manifest(manifest)
+    meshes = find_part_meshes(published, part, mesh_root)
+    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
+    record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
+    return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 
 
 @dataclass(frozen=True)

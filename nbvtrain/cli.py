@@ -35,7 +35,7 @@ FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "
              "regression_loss": "regression_loss", "near_best": "near_best", "dropout": "dropout",
              "dropout_from": "dropout_from", "split": "split", "val_fraction": "val_fraction",
              "augment": "augment", "seed": "seed", "device": "device", "threads": "threads",
-             "mixed_scenes": "mixed_scenes"}
+             "mixed_scenes": "mixed_scenes", "init": "init"}
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -53,10 +53,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
         config = load_config(TrainConfig, args.config, args.overrides + [f"{k}={v}" for k, v in flags.items()])
     manifest = args.shards[0] if len(args.shards) == 1 and args.shards[0].suffix == ".json" else None
     shards = shard_files(args.shards) if args.shards and manifest is None else []
+    added = shard_files(args.add_train) if args.add_train else []
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     started = time.perf_counter()
     try:
-        result = fit(shards, config, out, resume=args.resume, progress=progress, manifest=manifest, root=args.root)
+        result = fit(shards, config, out, resume=args.resume, progress=progress, manifest=manifest, root=args.root,
+                     add_train=added)
     except Interrupted as stop:
         print(f"nbvtrain fit: {stop}; continue with: nbvtrain fit --resume --out {out}", file=sys.stderr)
         return 130
@@ -200,10 +202,10 @@ def cmd_baselines(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Reconstruct unseen objects in closed loop with each planner; coverage.csv, summary, plots."""
     from nbvdata.config import SimConfig
-    from nbvdata.generate import mesh_sources
+    from nbvdata.generate import mesh_sources, part_sources
     from nbvdata.mesh import MeshError
     from nbvdata.views import view_sphere
-    from nbvtrain.evaluate import evaluate, part_sources, settings_dict, write_outputs
+    from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
     from nbvtrain.planners import PLANNERS, build_planners
 
     names = [name.strip() for name in args.planners.split(",") if name.strip()]
@@ -327,6 +329,12 @@ def build_parser() -> Parser:
                      "version's manifest (manifests/NAME-X.Y.Z.json: verified, then trained on with its split)")
     fit.add_argument("--root", type=Path, help="with a manifest: the folder holding its shards (default: the "
                      "one it records)")
+    fit.add_argument("--add-train", type=Path, action="append", metavar="SHARDS", help="with a manifest: more "
+                     "shards (a file or folder; repeatable) for its training part, e.g. a DAgger round on its training "
+                     "meshes (nbvdata generate --manifest M --part train --policy CKPT); refused when they hold a mesh "
+                     "of its validation or test part")
+    fit.add_argument("--init", metavar="CHECKPOINT", help="start from this checkpoint's weights (same --model) "
+                     "instead of fresh ones: fine-tuning, e.g. on a DAgger round; a fresh optimiser (init)")
     fit.add_argument("--config", type=Path, help="YAML file of training settings (default: the paper's, which "
                      "configs/train.yaml lists)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

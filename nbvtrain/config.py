@@ -54,6 +54,9 @@ class TrainConfig:
     """Torch CPU threads; 0 = torch's default (one per core)."""
     memory_limit_gb: float = 8.0
     """Load the grids into memory when they take at most this much, else read them lazily."""
+    init: str | None = None
+    """A checkpoint of ``nbvtrain fit`` (same ``model``) whose weights start the run instead of fresh
+    ones: fine-tuning, e.g. on a DAgger round; the optimiser starts fresh. None: weights from ``seed``."""
     mixed_scenes: bool = False
     """Train on shards made in different scenes (settings that differ beyond ``episode``: views,
     sensor, grid, ...); refused by default. The checkpoint then records the scene as mixed, with

@@ -58,7 +58,6 @@ import yaml
 from nbvdata.config import ConfigError, SimConfig, to_dict
 from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.generate import MeshSource
-from nbvdata.manifest import find_part_meshes, load_manifest
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
@@ -525,18 +524,6 @@ def plot_coverage(rows: list[dict], folder: Path, floors: list[dict] = ()) -> li
         plt.close(figure)
         paths.append(path)
     return paths
-
-
-def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) -> tuple[list[MeshSource], dict]:
-    """The meshes of ``part`` (train, val or test) of a published version's mesh split, each file
-    found in or below ``mesh_root`` by its name and sha256 (``nbvdata.manifest.find_part_meshes``:
-    ManifestError naming a missing or changed one), and what config.yaml records of the choice:
-    {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
-    published = load_manifest(manifest)
-    meshes = find_part_meshes(published, part, mesh_root)
-    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
-    record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
-    return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 
 
 def settings_dict(config: SimConfig, **arguments) -> dict:

@@ -40,6 +40,7 @@ from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified
+from nbvdata.mesh import sha256_file
 from nbvdata.text import plural
 from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, model_from, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
@@ -143,28 +144,31 @@ def load_run_config(out: Path) -> TrainConfig:
 
 def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False,
         progress: bool = False, log: Callable[[str], None] = print, manifest: Path | None = None,
-        root: Path | None = None) -> FitResult:
+        root: Path | None = None, add_train: list[Path] = ()) -> FitResult:
     """Train ``config.model`` on ``shards``, writing the run folder ``out``.
 
     With ``manifest`` (a published NAME-X.Y.Z.json) instead of shards: verify its shards (under
     ``root``, default the one it records), then train on exactly them with its ``config.split``
-    split. With ``resume``, continue from ``out/last.pt`` (same settings but ``epochs``;
-    ``shards`` may be empty to reuse the run's shards or manifest). Raises ``Interrupted`` after
-    saving on Ctrl-C.
+    split; ``add_train`` (shard files) join its training part with every sample (e.g. a DAgger
+    round on its training meshes; a shard of a mesh its mesh split holds out is refused: a leak).
+    With ``config.init``, the weights start from that checkpoint's. With ``resume``, continue from
+    ``out/last.pt`` (same settings but ``epochs``; ``shards`` may be empty to reuse the run's
+    shards, manifest and added shards). Raises ``Interrupted`` after saving on Ctrl-C.
     """
     out = Path(out)
     checkpoint = _check_run(out, config, resume)
     if config.threads:
         torch.set_num_threads(config.threads)
     device = resolve_device(config.device)
-    shards, published = _sources(list(shards), manifest, root, out, resume)
+    shards, published, added = _sources(list(shards), manifest, root, out, resume, list(add_train))
     if published is not None:
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
+    init = None if resumed is not None or config.init is None else _init_checkpoint(config)
     points = architecture(config.model).inputs == "points"
-    data = load_shards(shards, config.memory_limit_gb, config.mixed_scenes, clouds=config.model if points else None,
-                       grids=not points)
+    data = load_shards(shards + added, config.memory_limit_gb, config.mixed_scenes,
+                       clouds=config.model if points else None, grids=not points)
     try:
         taken = _view_states(data, config)
         if resumed is None:
@@ -172,6 +176,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units)
             if points:  # the clouds enter on the unit sphere's scale, as the targets
                 model.point_scale.fill_(1.0 / data.view_radius)
+            if init is not None:
+                _start_from(model, init, config.init, data)
             model = model.to(device)
             optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
             history: list[dict] = []
@@ -191,12 +197,17 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             train_idx, val_idx, split = split_indices(data, config.split, config.val_fraction, config.seed)
         else:
             train_idx, val_idx, split = published_split(published, config.split)
+            if added:
+                train_idx = _join_added(data, published, split, train_idx)
         # Every input is checked: only now is anything written (a bad shard leaves no run folder).
         _start(out, config)
         _write_text(out / "data.json", json.dumps({
             "shards": [str(Path(p).resolve()) for p in data.paths], "samples": len(data),
             "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
             **({} if published is None else {"manifest": published.identity}),
+            **({"added_train": [str(Path(p).resolve()) for p in added]} if added else {}),
+            **({} if init is None else {"init": {"path": str(Path(config.init).resolve()), "sha256": init["sha256"],
+                                                 "epoch": init["epoch"]}}),
             "val_indices": val_idx.tolist()}, indent=1, allow_nan=False))
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
@@ -233,28 +244,87 @@ def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
     return load_view_states(data.paths)
 
 
-def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path,
-             resume: bool) -> tuple[list[Path], Published | None]:
-    """The shards to train on and, when they are a published version's, its verified manifest.
+def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path, resume: bool,
+             added: list[Path]) -> tuple[list[Path], Published | None, list[Path]]:
+    """The shards to train on, when they are a published version's its verified manifest, and the
+    shards added to its training part.
 
     A resumed run without shards or manifest reuses its own; a resumed run of a published
-    version must find the same manifest bytes (sha256) and shards."""
+    version must find the same manifest bytes (sha256) and shards, and the same added shards."""
     recorded = None
     if resume and (out / "data.json").exists():
         saved = json.loads((out / "data.json").read_text())
         recorded = saved.get("manifest")
+        before = [Path(p) for p in saved.get("added_train", [])]
+        if added and [p.resolve() for p in added] != before:
+            raise ConfigError(f"--resume: the run in {out} adds {plural(len(before), 'other shard')} to its training "
+                              "part: resume without --add-train (it reuses them), or start a new --out")
+        added = before
         if not shards and manifest is None:
             if recorded is None:
-                return [Path(p) for p in saved["shards"]], None
+                return [Path(p) for p in saved["shards"]], None, []
             manifest, root = Path(recorded["path"]), root or Path(recorded["root"])
     if manifest is None:
-        return shards, None
+        if added:
+            raise ConfigError("--add-train joins the training part of a published version: pass its manifest "
+                              "(nbvtrain fit manifests/NAME-X.Y.Z.json --split mesh --add-train DIR), or list "
+                              "every folder as shards")
+        return shards, None, []
     published = open_verified(manifest, root)
     if recorded is not None and published.sha256 != recorded["sha256"]:
         raise ConfigError(f"--resume: {out} trains on {recorded['name']} {recorded['version']} (manifest sha256 "
                           f"{recorded['sha256'][:12]}), but {manifest} has sha256 {published.sha256[:12]}: "
                           "resume with that manifest, or start a new --out")
-    return published.shard_paths, published
+    return published.shard_paths, published, added
+
+
+def _join_added(data: ShardSet, published: Published, split: dict, train_idx: np.ndarray) -> np.ndarray:
+    """The training indices with every sample after the version's own (those of the added shards)
+    appended; ConfigError when the split is not by mesh or an added sample's mesh is one the
+    split holds out (validation or test): choosing on those objects would then see them trained on."""
+    first = sum(int(entry["samples"]) for entry in published.content["shards"])
+    where = f"the training part of {published.label}"
+    if split["kind"] != "mesh":
+        raise ConfigError(f"--add-train joins {where}'s mesh split, which keeps its validation objects apart: "
+                          "add --split mesh")
+    if data.mesh_ids is None:
+        raise ShardError(f"--add-train: the added shards hold no mesh ids (imported data), so nothing shows they "
+                         f"stay out of {published.label}'s validation objects: add shards written by nbvdata generate")
+    held = set(split["val_meshes"]) | set(split["test_meshes"])
+    leaked = sorted(set(data.mesh_ids[first:].tolist()) & held)
+    if leaked:
+        raise ConfigError(f"--add-train: the added shards hold {plural(len(leaked), 'mesh')} of {published.label}'s "
+                          f"validation or test part (mesh id {leaked[0][:12]}...), a leak into the objects that "
+                          f"choose: generate them from {where} only (nbvdata generate --manifest "
+                          f"{published.path} --part train --meshes ROOT)")
+    return np.concatenate([train_idx, np.arange(first, len(data))])
+
+
+def _init_checkpoint(config: TrainConfig) -> dict:
+    """The checkpoint ``config.init`` names, checked to hold ``config.model``, and its sha256."""
+    path = Path(config.init)
+    state = load_checkpoint(path, "init= (--init) takes a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+    if state["model"] != config.model:
+        raise ConfigError(f"--init {path}: a {state['model']} checkpoint, and this run trains {config.model}: pass "
+                          f"--model {state['model']}, or a checkpoint of {config.model}")
+    return state | {"sha256": sha256_file(path)}
+
+
+def _start_from(model: NBVNet | ScoreNet, init: dict, path: str, data: ShardSet) -> None:
+    """Load ``init``'s weights into ``model``; ConfigError when it was trained in another scene or
+    (a score network) on other candidate views than ``data``."""
+    recorded = init.get("scene")
+    if recorded and data.scene and not recorded.get("mixed") and recorded != data.scene:
+        key = next(key for key in recorded if recorded.get(key) != data.scene.get(key))
+        raise ConfigError(f"--init {path}: trained in another scene ({key} {recorded.get(key)!r}, these shards "
+                          f"{data.scene.get(key)!r}): start from a checkpoint of this scene, or without --init")
+    units = init.get("view_units")
+    if model.task == "scores" and (not isinstance(units, torch.Tensor) or data.view_units is None
+                                   or tuple(units.shape) != data.view_units.shape
+                                   or not np.allclose(units.double().numpy(), data.view_units, atol=1e-9)):
+        raise ConfigError(f"--init {path}: scores other candidate views than these shards': start from a checkpoint "
+                          "trained on this view set, or without --init")
+    restore(model, init["state_dict"], Path(path), "pass a checkpoint of the same network and --dropout-from")
 
 
 def _check_run(out: Path, config: TrainConfig, resume: bool) -> dict | None:

@@ -53,3 +53,22 @@ def test_missing_and_broken_files(tmp_path):
     broken.write_text("views: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(SimConfig, broken)
+
+
+def test_numbers_in_exponent_notation_are_numbers_in_files_flags_and_overrides(tmp_path, capsys):
+    """YAML 1.1 (PyYAML) reads 1e-5 as text: a float setting takes it as the number it spells."""
+    from nbvtrain.cli import main
+    from nbvtrain.config import TrainConfig
+
+    assert yaml.safe_load("lr: 1e-5")["lr"] == "1e-5"  # the quirk this guards against
+    path = tmp_path / "train.yaml"
+    path.write_text("lr: 1e-5\nnear_best: 9E-1\n")
+    config = load_config(TrainConfig, path, ["dropout=+2.5e-1"])
+    assert (config.lr, config.near_best, config.dropout) == (1e-5, 0.9, 0.25)
+    assert load_config(SimConfig, overrides=["sensor.noise_std=2e-3"]).sensor.noise_std == 0.002
+    for text in ("1e", "e-5", "1e-5x", "one"):  # still refused: not a number
+        with pytest.raises(ConfigError, match="must be a number"):
+            load_config(TrainConfig, overrides=[f"lr={text}"])
+    # the flag: str(1e-05) is '1e-05', which reached the settings as text and was refused
+    assert main(["fit", str(tmp_path / "none"), "--lr", "1e-5", "--out", str(tmp_path / "run")]) == 2
+    assert "no such shard or folder" in capsys.readouterr().err

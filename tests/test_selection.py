@@ -1,7 +1,9 @@
 """The selection protocol: ``nbvtrain evaluate --manifest M --part P --meshes ROOT`` evaluates
 exactly the meshes of that part of a published version's mesh split, found by the file names and
 sha256 the manifest records, and refuses a changed or missing file, an unknown or empty part, in
-one line (exit 2); config.yaml records which version and part chose what."""
+one line (exit 2); config.yaml records which version and part chose what. A DAgger round
+(``nbvdata generate --manifest M --part train --policy CKPT``) joins the version's training part
+(``nbvtrain fit M --add-train DIR --init CKPT``) and never its validation objects."""
 
 from __future__ import annotations
 
@@ -15,7 +17,11 @@ import pytest
 import trimesh
 import yaml
 
+import torch
+
+from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
+from nbvdata.shards import Shard
 from nbvdata.generate import generate, mesh_sources
 from nbvdata.manifest import ManifestError, find_part_meshes, load_manifest, publish
 from nbvdata.shapes import BUILTIN_SHAPES
@@ -26,6 +32,7 @@ from conftest import MESHES, need
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
 NAMES = ("mug", "ring", "pill", "snowman", "step_block")
+FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]
 
 
 @pytest.fixture(scope="module")
@@ -183,3 +190,90 @@ def test_the_selection_table_ranks_by_the_shared_meshes_and_says_when_a_run_stop
     assert run("--stopped", "2").returncode == 0 and run("--stopped", "3").returncode == 1
     table = run().stdout
     assert "| net-e004 | scores **best** | v 1.0.0 val | 2 | 2 | 75.0 | 90.0 | 60.0 | 2.0 | epoch-4.pt |" in table
+
+
+def _mesh_ids(folder: Path) -> set[str]:
+    ids = set()
+    for path in folder.glob("*.h5"):
+        with Shard(path) as shard:
+            ids |= set(shard["mesh_id"].astype(str).tolist())
+    return ids
+
+
+def _generate_part(manifest: Path, part: str, meshes: Path, out: Path, policy: Path) -> None:
+    assert nbvdata_main(["generate", "--manifest", str(manifest), "--part", part, "--meshes", str(meshes),
+                         "--policy", str(policy), "--config", str(SMOKE), "--set", "episode.max_scans=2",
+                         "--runs-per-mesh", "1", "--workers", "1", "--out", str(out), "--no-progress"]) == 0
+
+
+def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_validation(version, tmp_path, capsys):
+    manifest, meshes = version
+    first = tmp_path / "first"
+    assert main(["fit", str(manifest), "--split", "mesh", "--epochs", "1", "--out", str(first), *FAST]) == 0
+    plain = json.loads((first / "data.json").read_text())
+    # the round: the policy's runs on exactly the training part's meshes
+    dagger = tmp_path / "dagger"
+    _generate_part(manifest, "train", meshes, dagger, first / "best.pt")
+    assert _mesh_ids(dagger) == set(_part_ids(manifest, "train"))
+    with Shard(next(dagger.glob("*.h5"))) as shard:
+        added_samples = len(shard) * len(_part_ids(manifest, "train"))
+        assert (shard["move"][shard["move"] >= 0] == 2).all()  # every move the policy's
+    # fine-tuning: every added sample trains, the validation samples are the version's own
+    tuned = tmp_path / "tuned"
+    assert main(["fit", str(manifest), "--split", "mesh", "--add-train", str(dagger), "--init",
+                 str(first / "best.pt"), "--lr", "1e-12", "--epochs", "1", "--out", str(tuned), *FAST]) == 0
+    data = json.loads((tuned / "data.json").read_text())
+    assert data["val_indices"] == plain["val_indices"] and data["val_samples"] == plain["val_samples"]
+    assert data["train_samples"] == plain["train_samples"] + added_samples
+    assert len(data["added_train"]) == len(list(dagger.glob("*.h5")))
+    init = data["init"]
+    assert init["sha256"] == hashlib.sha256((first / "best.pt").read_bytes()).hexdigest() and init["epoch"] == 1
+    start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
+    after = torch.load(tuned / "last.pt", weights_only=True)["state_dict"]
+    assert all(torch.allclose(start[key].float(), after[key].float(), atol=1e-6) for key in start)  # lr 1e-12
+    # resuming reuses the added shards; other ones are refused
+    assert main(["fit", "--resume", "--epochs", "2", "--out", str(tuned), "--no-progress"]) == 0
+    assert json.loads((tuned / "data.json").read_text())["train_samples"] == data["train_samples"]
+    capsys.readouterr()
+    others = manifest.parent.parent / "shards"
+    assert main(["fit", "--resume", "--epochs", "3", "--add-train", str(others), "--out", str(tuned), "--no-progress"]) == 2
+    assert "resume without --add-train" in capsys.readouterr().err
+    # a round on the validation part would leak into the objects that choose: refused, nothing written
+    leak = tmp_path / "leak"
+    _generate_part(manifest, "val", meshes, leak, first / "best.pt")
+    capsys.readouterr()
+    assert main(["fit", str(manifest), "--split", "mesh", "--add-train", str(leak), "--epochs", "1",
+                 "--out", str(tmp_path / "no"), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "validation or test part" in err and "--part train" in err
+    assert not (tmp_path / "no").exists()
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--add-train", "DAGGER"], "add --split mesh"),                          # the random split mixes objects
+    (["--split", "mesh", "--init", "FIRST", "--model", "nbvnet-3-5"], "a nbvnet-3-3 checkpoint"),
+    (["--split", "mesh", "--init", "MISSING"], "no such checkpoint file"),
+])
+def test_dagger_fine_tuning_refuses_what_it_cannot_do_in_one_line(version, tmp_path, capsys, flags, message):
+    manifest, meshes = version
+    first = tmp_path / "first"
+    assert main(["fit", str(manifest), "--split", "mesh", "--epochs", "1", "--out", str(first), *FAST]) == 0
+    if "DAGGER" in flags:
+        _generate_part(manifest, "train", meshes, tmp_path / "dagger", first / "best.pt")
+    where = {"DAGGER": tmp_path / "dagger", "FIRST": first / "best.pt", "MISSING": tmp_path / "none.pt"}
+    flags = [str(where.get(flag, flag)) for flag in flags]
+    capsys.readouterr()
+    assert main(["fit", str(manifest), *FAST, "--epochs", "1", *flags, "--out", str(tmp_path / "no")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "no").exists()
+
+
+def test_add_train_needs_a_version_and_generate_parts_need_a_manifest(version, tmp_path, capsys):
+    manifest, meshes = version
+    shards = manifest.parent.parent / "shards"
+    assert main(["fit", str(shards), "--add-train", str(shards), "--out", str(tmp_path / "no"), *FAST]) == 2
+    assert "--add-train joins the training part of a published version" in capsys.readouterr().err
+    assert nbvdata_main(["generate", "--part", "train", "--meshes", str(meshes), "--out", str(tmp_path / "g")]) == 2
+    assert "--part train needs --manifest" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists() and not (tmp_path / "g").exists()
