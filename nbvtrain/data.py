@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -252,23 +253,50 @@ def _valid_views(shard: Shard) -> np.ndarray | None:
     return shard["overlaps"].astype(np.float64) >= float(min_overlap)
 
 
-def load_view_states(paths: list[Path]) -> np.ndarray:
+def load_view_states(paths: list[Path], poses: Literal["refuse", "nearest"] = "refuse") -> np.ndarray:
     """(N, V) bool view states of every sample of ``paths`` in order (``view_state`` per shard);
-    ShardError naming the shard when one has no ``last_view`` (imported data) or a gap in a run."""
+    ShardError naming the shard when one has no ``last_view`` (imported data) or a gap in a run.
+
+    ``poses``: a state reached through a pose that is no candidate view (``last_view`` -1: a
+    regression or classification policy's rollout) is refused (a score network's input would be
+    wrong), or ``nearest``: that scan counts as the candidate view nearest to its pose in direction
+    (``nearest_views``; what ``nbvtrain evaluate`` shows such a planner's own policies)."""
     parts = []
     for path in paths:
         with Shard(path) as shard:
             if not shard.has("last_view"):
                 raise ShardError(f"{path}: no last_view (imported data), so no view state: use shards written by "
                                  "nbvdata generate")
+            last = shard["last_view"]
             try:
-                parts.append(view_state(shard["run"], shard["step"], shard["last_view"],
-                                        len(shard["view_positions"])))
+                if poses == "nearest" and len(last) and last.min() < 0:
+                    last = nearest_views(shard["run"], shard["step"], last, shard["next_pose"][:, :3],
+                                         shard["view_positions"])
+                parts.append(view_state(shard["run"], shard["step"], last, len(shard["view_positions"])))
             except ValueError as error:
                 raise ShardError(f"{path}: {error}") from None
     if len({part.shape[1] for part in parts}) > 1:
         raise ShardError("the shards have different numbers of candidate views: load one kind at a time")
     return np.concatenate(parts)
+
+
+def nearest_views(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, next_position: np.ndarray,
+                  views: np.ndarray) -> np.ndarray:
+    """(N,) ``last_view`` with each -1 (a state reached through a pose) replaced by the candidate
+    view nearest in direction to that pose: the previous state's (same run, one step before)
+    ``next_position`` (N, 3), object frame; ``views`` (V, 3) candidate positions. ValueError when
+    the previous state is missing."""
+    last = np.array(last_view, dtype=np.int64)
+    rows = {(r, s): i for i, (r, s) in enumerate(zip(np.asarray(run).tolist(), np.asarray(step).tolist()))}
+    units = views / np.linalg.norm(views, axis=1, keepdims=True)
+    for i in np.flatnonzero(last < 0):
+        before = rows.get((run[i].item(), step[i].item() - 1))
+        if before is None:
+            raise ValueError(f"run {run[i]} step {step[i]} was reached through a pose, and its state before (step "
+                             f"{step[i] - 1}) is missing: the pose is unknown")
+        position = np.asarray(next_position[before], dtype=np.float64)
+        last[i] = int(np.argmax(units @ (position / np.linalg.norm(position))))
+    return last
 
 
 def split_indices(data: ShardSet, kind: str, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict]:

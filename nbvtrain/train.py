@@ -241,7 +241,7 @@ def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
         raise ShardError(f"{learns} learns from every candidate view's gain and overlap, and these shards do not all "
                          "hold them for one common view set (imported data has none): train it on shards written by "
                          "nbvdata generate" + ("" if task == "scores" else ", or use regression_loss=label"))
-    return load_view_states(data.paths)
+    return load_view_states(data.paths, poses="refuse" if task == "scores" else "nearest")
 
 
 def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path, resume: bool,

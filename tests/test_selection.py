@@ -13,6 +13,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import trimesh
 import yaml
@@ -21,11 +22,12 @@ import torch
 
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
-from nbvdata.shards import Shard
+from nbvdata.shards import Shard, view_state
 from nbvdata.generate import generate, mesh_sources
 from nbvdata.manifest import ManifestError, find_part_meshes, load_manifest, publish
 from nbvdata.shapes import BUILTIN_SHAPES
 from nbvtrain.cli import main
+from nbvtrain.data import nearest_views
 
 from conftest import MESHES, need
 
@@ -209,7 +211,8 @@ def _generate_part(manifest: Path, part: str, meshes: Path, out: Path, policy: P
 def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_validation(version, tmp_path, capsys):
     manifest, meshes = version
     first = tmp_path / "first"
-    assert main(["fit", str(manifest), "--split", "mesh", "--epochs", "1", "--out", str(first), *FAST]) == 0
+    assert main(["fit", str(manifest), "--split", "mesh", "--epochs", "1", "--out", str(first),
+                 "--regression-loss", "near-best", *FAST]) == 0
     plain = json.loads((first / "data.json").read_text())
     # the round: the policy's runs on exactly the training part's meshes
     dagger = tmp_path / "dagger"
@@ -221,7 +224,8 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     # fine-tuning: every added sample trains, the validation samples are the version's own
     tuned = tmp_path / "tuned"
     assert main(["fit", str(manifest), "--split", "mesh", "--add-train", str(dagger), "--init",
-                 str(first / "best.pt"), "--lr", "1e-12", "--epochs", "1", "--out", str(tuned), *FAST]) == 0
+                 str(first / "best.pt"), "--lr", "1e-12", "--epochs", "1", "--out", str(tuned),
+                 "--regression-loss", "near-best", *FAST]) == 0  # near-best: the view states of policy poses
     data = json.loads((tuned / "data.json").read_text())
     assert data["val_indices"] == plain["val_indices"] and data["val_samples"] == plain["val_samples"]
     assert data["train_samples"] == plain["train_samples"] + added_samples
@@ -277,3 +281,18 @@ def test_add_train_needs_a_version_and_generate_parts_need_a_manifest(version, t
     assert nbvdata_main(["generate", "--part", "train", "--meshes", str(meshes), "--out", str(tmp_path / "g")]) == 2
     assert "--part train needs --manifest" in capsys.readouterr().err
     assert not (tmp_path / "no").exists() and not (tmp_path / "g").exists()
+
+
+def test_a_policy_pose_counts_as_the_candidate_view_nearest_to_it():
+    views = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [-1.0, 0, 0]]) * 0.4
+    run, step = np.array([7, 7, 7, 8]), np.array([1, 2, 3, 1])
+    last = np.array([0, -1, -1, 3])
+    next_position = np.array([[0.01, 0.5, 0.02], [-0.3, 0.05, 0.9], [9, 9, 9], [0, 0, 0]])  # beside views 1 and 2
+    assert nearest_views(run, step, last, next_position, views).tolist() == [0, 1, 2, 3]
+    taken = view_state(run, step, nearest_views(run, step, last, next_position, views), 4)
+    assert taken.tolist() == [[True, False, False, False], [True, True, False, False], [True, True, True, False],
+                              [False, False, False, True]]
+    with pytest.raises(ValueError, match="step 2 was reached through a pose"):
+        nearest_views(run[1:], step[1:], last[1:], next_position[1:], views)  # its state before is missing
+    with pytest.raises(ValueError, match="last_view -1"):
+        view_state(run, step, last, 4)  # score networks: still refused
