@@ -14,9 +14,12 @@ validation states that ``RUN/data.json`` records (its shards and ``val_indices``
 - views: how many candidate views the answers land on.
 
 The random row is the mean gain ratio of a uniformly random unscanned view. The closed loop
-(``nbvtrain evaluate``) decides; this says why it goes as it does.
+(``nbvtrain evaluate``) decides; this says why it goes as it does. ``--shards DIR`` takes the
+states of DIR instead of the run's validation states: e.g. a policy's own rollout on the validation
+objects (``nbvdata generate --manifest M --part val --policy CKPT``), where a state reached through
+a pose counts that scan as its nearest candidate view (``nbvtrain.data.nearest_views``).
 
-    python benchmarks/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0]
+    python benchmarks/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0] [--shards DIR]
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nbvdata.shards import shard_files
 from nbvtrain.data import load_shards, load_view_states, to_grids
 from nbvtrain.metrics import gain_ratio, nearest_view, unit
 from nbvtrain.predict import Predictor
@@ -40,16 +44,23 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=1500)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--shards", type=Path, help="states from these shards (a folder) instead of the run's "
+                        "validation states")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    recorded = json.loads((args.run / "data.json").read_text())
-    paths = [Path(p) for p in recorded["shards"]]
-    val = np.array(recorded["val_indices"])
-    chosen = np.sort(np.random.default_rng(args.seed).choice(val, min(args.samples, len(val)), replace=False))
+    if args.shards is None:
+        recorded = json.loads((args.run / "data.json").read_text())
+        paths = [Path(p) for p in recorded["shards"]]
+        source = f"validation states of {args.run}"
+    else:
+        paths = shard_files([args.shards])
+        source = f"states of {args.shards}"
     data = load_shards(paths, grids=False)
     try:
-        scanned = load_view_states(paths)[chosen]
+        val = np.arange(len(data)) if args.shards is not None else np.array(recorded["val_indices"])
+        chosen = np.sort(np.random.default_rng(args.seed).choice(val, min(args.samples, len(val)), replace=False))
+        scanned = load_view_states(paths, poses="nearest")[chosen]
         eligible = data.valid[chosen] & ~scanned  # passes the overlap rule, not scanned
         gains = data.gains[chosen]
         codes = data.grids.take(chosen)
@@ -60,7 +71,7 @@ def main() -> None:
         data.close()
     best = np.where(eligible, gains, 0.0).max(axis=1)
     ranked = best > 0
-    print(f"{len(chosen)} validation states of {args.run} ({int(ranked.sum())} with a gain left)")
+    print(f"{len(chosen)} {source} ({int(ranked.sum())} with a gain left)")
     print(f"{'answers':<50} {'norm':>6} {'gain ratio':>10} {'resultant':>9} {'views':>6}")
 
     def row(name: str, answers: np.ndarray) -> None:

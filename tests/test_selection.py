@@ -11,6 +11,8 @@ import csv
 import hashlib
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -235,6 +237,11 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
     after = torch.load(tuned / "last.pt", weights_only=True)["state_dict"]
     assert all(torch.allclose(start[key].float(), after[key].float(), atol=1e-6) for key in start)  # lr 1e-12
+    # benchmarks/regression_answers.py --shards: the policy's own states, its poses as their nearest views
+    answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(first),
+                              str(first / "best.pt"), "--shards", str(dagger), "--samples", "5"],
+                             capture_output=True, text=True, check=True).stdout.splitlines()
+    assert answers[0].startswith(f"5 states of {dagger}") and answers[3].split()[-3] == "1.000"  # labels: the best
     # resuming reuses the added shards; other ones are refused
     assert main(["fit", "--resume", "--epochs", "2", "--out", str(tuned), "--no-progress"]) == 0
     assert json.loads((tuned / "data.json").read_text())["train_samples"] == data["train_samples"]
