@@ -257,8 +257,8 @@ def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: 
         recorded = saved.get("manifest")
         before = [Path(p) for p in saved.get("added_train", [])]
         if added and [p.resolve() for p in added] != before:
-            raise ConfigError(f"--resume: the run in {out} adds {plural(len(before), 'other shard')} to its training "
-                              "part: resume without --add-train (it reuses them), or start a new --out")
+            raise ConfigError(f"--resume: the run in {out} adds {plural(len(before), 'shard')} of its own to its "
+                              "training part: resume without --add-train (it reuses them), or start a new --out")
         added = before
         if not shards and manifest is None:
             if recorded is None:
