@@ -17,6 +17,7 @@ import torch
 from nbvdata.manifest import Published, mesh_split, random_split
 from nbvdata.shards import Shard, ShardError, view_state  # noqa: F401 (view_state: public here too)
 from nbvdata.text import plural
+from nbvtrain.metrics import nearest_view
 from nbvtrain.scene import mixed_scene_record, scene_difference, scene_record_of
 
 
@@ -288,14 +289,15 @@ def nearest_views(run: np.ndarray, step: np.ndarray, last_view: np.ndarray, next
     the previous state is missing."""
     last = np.array(last_view, dtype=np.int64)
     rows = {(r, s): i for i, (r, s) in enumerate(zip(np.asarray(run).tolist(), np.asarray(step).tolist()))}
-    units = views / np.linalg.norm(views, axis=1, keepdims=True)
-    for i in np.flatnonzero(last < 0):
-        before = rows.get((run[i].item(), step[i].item() - 1))
-        if before is None:
+    missing = np.flatnonzero(last < 0)
+    before = [rows.get((run[i].item(), step[i].item() - 1)) for i in missing]
+    for i, row in zip(missing, before):
+        if row is None:
             raise ValueError(f"run {run[i]} step {step[i]} was reached through a pose, and its state before (step "
                              f"{step[i] - 1}) is missing: the pose is unknown")
-        position = np.asarray(next_position[before], dtype=np.float64)
-        last[i] = int(np.argmax(units @ (position / np.linalg.norm(position))))
+    if len(missing):
+        units = views / np.linalg.norm(views, axis=1, keepdims=True)
+        last[missing] = nearest_view(np.asarray(next_position, dtype=np.float64)[before], units)
     return last
 
 
