@@ -11,9 +11,12 @@
 #   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3, regression or
 #                                                 # regression-near-best (nbvnet-4-3 on the near-best loss);
 #                                                 # run it again until it says the validation stopped improving
-#   benchmarks/selection.sh dagger                # a DAgger round: DAGGER_POLICY's runs on the training
+#   benchmarks/selection.sh dagger [N]            # DAgger round N (1): the policy's runs on the training
 #                                                 # meshes, every state labelled exactly; then fit regression-dagger
-#                                                 # (near-best, started from DAGGER_POLICY, the round added)
+#                                                 # (round 1) or regression-daggerN: near-best, started from the
+#                                                 # round's policy, rounds 1..N added. The policy of round N is the
+#                                                 # best snapshot on the validation objects of the run before it
+#                                                 # (regression-near-best, regression-dagger, regression-dagger2...)
 #   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
 #   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
 #   benchmarks/selection.sh table                 # every validation result so far, as one table
@@ -23,7 +26,8 @@
 # Run from the repository root with the package installed. Settings (environment): WORKERS (evaluate and
 # generate processes, 2), THREADS (torch threads of fit, 1), EPOCHS_PER_SITTING (2; SMOKE 1), PATIENCE
 # (sittings without a new best before a network counts as converged, 3; SMOKE 1), SELECT_BY (the mean that
-# ranks: shared, all or procedural; default shared), OUT (runs/selection), MESHES (../shared/meshes).
+# ranks: shared, all or procedural; default shared), OUT (runs/selection), MESHES (../shared/meshes),
+# DAGGER_POLICY (the checkpoint that rolls a DAgger round and starts its fine-tuning; default: the best).
 set -euo pipefail
 
 SMOKE=${SMOKE:-0}
@@ -60,10 +64,6 @@ else
     BATCH=(--batch-size 64)
 fi
 MANIFEST=$MANIFESTS/$NAME-$VERSION.json
-# the DAgger round: the policy it rolls (the best regression snapshot on the validation objects when it was
-# made: the near-best run's epoch 5) and where its shards go
-DAGGER_POLICY=${DAGGER_POLICY:-$OUT/fit/regression-near-best/snapshots/epoch-005.pt}
-DAGGER=${DAGGER:-$DATA-dagger1}
 VAL=$OUT/val                                        # one folder per evaluation on the validation objects
 log() { printf '\n== %s\n' "$*" >&2; }
 
@@ -94,10 +94,36 @@ every setting (benchmarks/selection.sh). Made with: nbvdata generate --meshes co
     nbvdata verify "$MANIFEST"
 }
 
-stage_dagger() {  # 4 runs per training mesh from other start views (seed 1), every move the policy's
-    log "DAgger round: $DAGGER_POLICY on the training part of $NAME $VERSION -> $DAGGER"
-    nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$DAGGER_POLICY" \
-        --runs-per-mesh 4 --seed 1 --workers "$WORKERS" --out "$DAGGER" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
+# DAgger round N: its shards, the run whose best validation snapshot rolls it, the run that fine-tunes on it
+dagger_data() { echo "$DATA-dagger$1"; }
+dagger_run() { [ "$1" = 1 ] && echo regression-dagger || echo "regression-dagger$1"; }
+dagger_round() { local n=${1#regression-dagger}; echo "${n:-1}"; }
+policy_run() { [ "$1" = 1 ] && echo regression-near-best || dagger_run $(( $1 - 1 )); }
+# DAGGER_POLICY overrides the choice (round 1 was rolled by regression-near-best's epoch 5, its best)
+dagger_policy() { [ -n "${DAGGER_POLICY:-}" ] && echo "$DAGGER_POLICY" || best "$(policy_run "$1")"; }
+
+stage_dagger() {  # N: 4 runs per training mesh from other start views (seed N), every move the policy's
+    local round=${1:-1} policy data
+    policy=$(dagger_policy "$round")
+    data=$(dagger_data "$round")
+    log "DAgger round $round: $policy on the training part of $NAME $VERSION -> $data"
+    nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$policy" \
+        --runs-per-mesh 4 --seed "$round" --workers "$WORKERS" --out "$data" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
+}
+
+dagger_flags() {  # N -> --add-train of rounds 1..N and --init the policy of round N (its sha256 checked)
+    local round=$1 policy data i flags=""
+    policy=$(dagger_policy "$round")
+    data=$(dagger_data "$round")
+    if [ ! -f "$data/policy.yaml" ]; then
+        echo "selection.sh: $data holds no DAgger round: run benchmarks/selection.sh dagger $round first" >&2
+        exit 2
+    elif [ "$(sha256sum < "$policy" | cut -d' ' -f1)" != "$(sed -n 's/^sha256: //p' "$data/policy.yaml")" ]; then
+        echo "selection.sh: $policy did not roll $data (policy.yaml); set DAGGER_POLICY to the checkpoint that did" >&2
+        exit 2
+    fi
+    for i in $(seq 1 "$round"); do flags="$flags --add-train $(dagger_data "$i")"; done
+    echo "$flags --init $policy"
 }
 
 fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a run extended is the same run)
@@ -107,8 +133,12 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
         # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
         regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
-        regression-dagger) echo "$(fit_flags regression-near-best) --add-train $DAGGER --init $DAGGER_POLICY" ;;
-        *) echo "unknown network $1: scores-fc3, scores-3, regression, regression-near-best or regression-dagger" >&2
+        regression-dagger|regression-dagger[0-9]*)
+            local round extra
+            round=$(dagger_round "$1")
+            extra=$(dagger_flags "$round") || exit 2
+            echo "$(fit_flags regression-near-best) $extra" ;;
+        *) echo "unknown network $1: scores-fc3, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
            exit 2 ;;
     esac
 }
@@ -128,7 +158,7 @@ evaluate_val() {  # OUT_NAME EVALUATE_FLAGS...: one closed-loop evaluation of th
 }
 
 stage_fit() {
-    local net=$1 run=$OUT/fit/$1 done target planner flag snapshot
+    local net=$1 run=$OUT/fit/$1 done target planner flag snapshot flags
     read -r planner flag <<< "$(planner_of "$net")"
     mkdir -p "$run/snapshots"
     done=$(epochs_done "$run")
@@ -145,8 +175,9 @@ stage_fit() {
         if [ -f "$run/config.yaml" ]; then
             nice -n 10 nbvtrain fit --resume --out "$run" --epochs "$target" --no-progress
         else
-            # shellcheck disable=SC2046
-            nice -n 10 nbvtrain fit "$MANIFEST" --split mesh $(fit_flags "$net") "${BATCH[@]}" --epochs "$target" \
+            flags=$(fit_flags "$net")                   # an assignment: its refusal stops the script
+            # shellcheck disable=SC2086
+            nice -n 10 nbvtrain fit "$MANIFEST" --split mesh $flags "${BATCH[@]}" --epochs "$target" \
                 --threads "$THREADS" --out "$run" --no-progress
         fi
         snapshot=$run/snapshots/epoch-$(printf %03d "$target").pt
@@ -207,8 +238,8 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression, regression-near-best or regression-dagger}" ;;
-    dagger) stage_dagger ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
+    dagger) stage_dagger "${2:-1}" ;;
     select) stage_select ;;
     test) stage_test ;;
     table) table "$VAL"/* ;;
@@ -219,7 +250,12 @@ case ${1:-} in
         stage_publish
         for net in scores-fc3 scores-3 regression; do stage_fit $net; done
         stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
+        stage_fit regression-near-best
+        stage_dagger 1
+        stage_fit regression-dagger
+        stage_dagger 2                                # rolled by regression-dagger's best snapshot
+        stage_fit regression-dagger2
         stage_select
         FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
-    *) sed -n '2,26p' "$0" >&2; exit 2 ;;
+    *) sed -n '2,30p' "$0" >&2; exit 2 ;;
 esac
