@@ -24,6 +24,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from nbvdata.config import ConfigError
 
@@ -184,16 +185,71 @@ def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Pat
         lines.append(f"- Data: {manifest['name']} {manifest['version']} (manifest sha256 {manifest['sha256']}), "
                      f"{data['split']['kind']} split: {data['train_samples']} training and {data['val_samples']} "
                      "validation samples.")
+    lines += _added_lines(data)
     machines = sorted({row["machine"] for row in history if row.get("machine")})
     where = f" on {' and '.join(machines)}" if machines else ""
     lines += [f"- Settings: {settings}.",
               f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time{where}; released: the "
               f"{chosen}, epoch {best['epoch']}.",
+              *_lineage_lines(data, best["epoch"], sum(row["seconds"] for row in history[:best["epoch"]])),
               f"- Validation samples at the released epoch: loss {best['val_loss']:.4f}, gain ratio "
               f"{best.get('val_gain_ratio', float('nan')):.3f}, invalid picks "
               f"{100 * best.get('val_invalid_share', float('nan')):.1f} %, angle to the label "
               f"{best['val_angle_deg']:.1f} deg, MSE {best['val_mse']:.4f}.", ""]
     return "\n".join(lines)
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the working folder where it lies below it, else its name (no local roots in a card)."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return path.name
+
+
+def _added_lines(data: dict) -> list[str]:
+    """The card's line on shards ``fit --add-train`` added to the training part (DAgger rounds), one
+    clause per folder, with the policy that rolled it where its ``policy.yaml`` is still there."""
+    folders: dict[Path, int] = {}
+    for shard in data.get("added_train", []):
+        folders[Path(shard).parent] = folders.get(Path(shard).parent, 0) + 1
+    if not folders:
+        return []
+    clauses = []
+    for folder, count in folders.items():
+        policy = folder / "policy.yaml"
+        rolled = yaml.safe_load(policy.read_text()) if policy.is_file() else None
+        by = (f", rolled by {rolled.get('network')} (sha256 {str(rolled.get('sha256'))[:12]})"
+              if isinstance(rolled, dict) else "")
+        clauses.append(f"{count} shards of `{_shown(folder)}`{by}")
+    return [f"- Added to the training part (`fit --add-train`, every state labelled exactly): {'; '.join(clauses)}."]
+
+
+def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
+    """The card's line on the checkpoints a run started from (``fit --init``), followed through the
+    run folders still on disk, with the epochs and wall time of the whole chain up to the release
+    (``epochs``, ``seconds``: the released run's own)."""
+    from nbvtrain.checkpoint import load_checkpoint
+
+    steps, known = [], True
+    init = data.get("init")
+    while init:
+        path = Path(init["path"])
+        steps.append(f"`{_shown(path)}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
+        epochs += init["epoch"]
+        try:
+            run, _ = run_of(path)
+            last = run / "last.pt"
+            history = load_checkpoint(last if last.is_file() else path)["history"]
+            seconds += sum(row["seconds"] for row in history[:init["epoch"]])
+            init = json.loads((run / "data.json").read_text()).get("init")
+        except (ConfigError, OSError, ValueError, KeyError):
+            known, init = False, None  # the ancestor's run is not on this machine: its time is unknown
+    if not steps:
+        return []
+    total = (f"{epochs} epochs in {seconds / 60:.1f} min of wall time" if known
+             else f"{epochs} epochs (wall time of the runs not on this machine unknown)")
+    return [f"- Started from (`fit --init`): {', which started from '.join(steps)}; the chain in all: {total}."]
 
 
 def _evaluate_arguments(path: Path) -> list[str]:

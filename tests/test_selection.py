@@ -237,6 +237,14 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     start = torch.load(first / "best.pt", weights_only=True)["state_dict"]
     after = torch.load(tuned / "last.pt", weights_only=True)["state_dict"]
     assert all(torch.allclose(start[key].float(), after[key].float(), atol=1e-6) for key in start)  # lr 1e-12
+    # its release's card names the round, its policy and the whole chain's epochs and time
+    assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "released")]) == 0
+    card = (tmp_path / "released" / "MODEL_CARD.md").read_text()
+    seconds = sum(torch.load(run / "last.pt", weights_only=True)["history"][0]["seconds"] for run in (first, tuned))
+    assert (f"every state labelled exactly): {len(data['added_train'])} shards of `dagger`, rolled by nbvnet-3-3 "
+            f"epoch 1 (sha256 {init['sha256'][:12]})." in card)
+    assert (f"- Started from (`fit --init`): `best.pt` (epoch 1, sha256 {init['sha256'][:12]}); the chain in all: "
+            f"2 epochs in {seconds / 60:.1f} min of wall time." in card)
     # benchmarks/regression_answers.py --shards: the policy's own states, its poses as their nearest views
     answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(first),
                               str(first / "best.pt"), "--shards", str(dagger), "--samples", "5"],
