@@ -166,6 +166,12 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             f"(sha256 {published.sha256[:12]})")
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
     init = None if resumed is not None or config.init is None else _init_checkpoint(config)
+    if resumed is not None:  # data.json's record of the checkpoint the run started from stays
+        started_from = _saved_data(out).get("init")
+    elif init is not None:
+        started_from = {"path": str(Path(config.init).resolve()), "sha256": init["sha256"], "epoch": init["epoch"]}
+    else:
+        started_from = None
     points = architecture(config.model).inputs == "points"
     data = load_shards(shards + added, config.memory_limit_gb, config.mixed_scenes,
                        clouds=config.model if points else None, grids=not points)
@@ -206,8 +212,7 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             "train_samples": len(train_idx), "val_samples": len(val_idx), "split": split,
             **({} if published is None else {"manifest": published.identity}),
             **({"added_train": [str(Path(p).resolve()) for p in added]} if added else {}),
-            **({} if init is None else {"init": {"path": str(Path(config.init).resolve()), "sha256": init["sha256"],
-                                                 "epoch": init["epoch"]}}),
+            **({} if started_from is None else {"init": started_from}),
             "val_indices": val_idx.tolist()}, indent=1, allow_nan=False))
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
@@ -244,6 +249,12 @@ def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
     return load_view_states(data.paths, poses="refuse" if task == "scores" else "nearest")
 
 
+def _saved_data(out: Path) -> dict:
+    """The ``data.json`` a run folder holds (empty when none)."""
+    path = out / "data.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
 def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path, resume: bool,
              added: list[Path]) -> tuple[list[Path], Published | None, list[Path]]:
     """The shards to train on, when they are a published version's its verified manifest, and the
@@ -253,7 +264,7 @@ def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: 
     version must find the same manifest bytes (sha256) and shards, and the same added shards."""
     recorded = None
     if resume and (out / "data.json").exists():
-        saved = json.loads((out / "data.json").read_text())
+        saved = _saved_data(out)
         recorded = saved.get("manifest")
         before = [Path(p) for p in saved.get("added_train", [])]
         if added and [p.resolve() for p in added] != before:

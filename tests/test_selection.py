@@ -252,7 +252,8 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     assert answers[0].startswith(f"5 states of {dagger}") and answers[3].split()[-3] == "1.000"  # labels: the best
     # resuming reuses the added shards; other ones are refused
     assert main(["fit", "--resume", "--epochs", "2", "--out", str(tuned), "--no-progress"]) == 0
-    assert json.loads((tuned / "data.json").read_text())["train_samples"] == data["train_samples"]
+    resumed = json.loads((tuned / "data.json").read_text())
+    assert resumed["train_samples"] == data["train_samples"] and resumed["init"] == init  # the record stays
     capsys.readouterr()
     others = manifest.parent.parent / "shards"
     assert main(["fit", "--resume", "--epochs", "3", "--add-train", str(others), "--out", str(tuned), "--no-progress"]) == 2
