@@ -231,9 +231,10 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
     (``epochs``, ``seconds``: the released run's own)."""
     from nbvtrain.checkpoint import load_checkpoint
 
-    steps, known = [], True
+    steps, known, seen = [], True, set()
     init = data.get("init")
-    while init:
+    while init and init["sha256"] not in seen:  # (a hand-edited data.json could loop)
+        seen.add(init["sha256"])
         path = Path(init["path"])
         steps.append(f"`{_shown(path)}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
         epochs += init["epoch"]
@@ -248,7 +249,7 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
     if not steps:
         return []
     total = (f"{epochs} epochs in {seconds / 60:.1f} min of wall time" if known
-             else f"{epochs} epochs (wall time of the runs not on this machine unknown)")
+             else f"at least {epochs} epochs (a run of the chain is not on this machine: its time is unknown)")
     return [f"- Started from (`fit --init`): {', which started from '.join(steps)}; the chain in all: {total}."]
 
 

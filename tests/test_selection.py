@@ -245,6 +245,12 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
             f"epoch 1 (sha256 {init['sha256'][:12]})." in card)
     assert (f"- Started from (`fit --init`): `best.pt` (epoch 1, sha256 {init['sha256'][:12]}); the chain in all: "
             f"2 epochs in {seconds / 60:.1f} min of wall time." in card)
+    record = (tuned / "data.json").read_text()  # the checkpoint it started from made on another machine
+    (tuned / "data.json").write_text(json.dumps({**data, "init": {**init, "path": str(tmp_path / "elsewhere.pt")}}))
+    assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "elsewhere")]) == 0
+    card = (tmp_path / "elsewhere" / "MODEL_CARD.md").read_text()
+    assert "the chain in all: at least 2 epochs (a run of the chain is not on this machine" in card
+    (tuned / "data.json").write_text(record)
     # benchmarks/regression_answers.py --shards: the policy's own states, its poses as their nearest views
     answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(first),
                               str(first / "best.pt"), "--shards", str(dagger), "--samples", "5"],
