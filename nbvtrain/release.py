@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+from collections import Counter
 from importlib import resources
 from pathlib import Path
 
@@ -210,9 +211,7 @@ def _shown(path: Path) -> str:
 def _added_lines(data: dict) -> list[str]:
     """The card's line on shards ``fit --add-train`` added to the training part (DAgger rounds), one
     clause per folder, with the policy that rolled it where its ``policy.yaml`` is still there."""
-    folders: dict[Path, int] = {}
-    for shard in data.get("added_train", []):
-        folders[Path(shard).parent] = folders.get(Path(shard).parent, 0) + 1
+    folders = Counter(Path(shard).parent for shard in data.get("added_train", []))
     if not folders:
         return []
     clauses = []
