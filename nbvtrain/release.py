@@ -123,10 +123,11 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
                               for key, value in state["state_dict"].items()}
         slim["released_from"] = str(checkpoint)
         path = out / f"{state['model']}.pt"
+        lineage = _lineage(run, state)  # before writing: the run may have started from the file it replaces
         save_checkpoint(path, slim)
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
-        sections[task] = _card_section(task, run, checkpoint, state, path)
+        sections[task] = _card_section(task, run, checkpoint, state, path, lineage)
     answers = {task: answers[task] for task in TASKS if task in answers}  # the card's order, whatever came last
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
@@ -165,13 +166,25 @@ def _card_sections(card: Path) -> dict[str, str]:
     return sections
 
 
-def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path) -> str:
+def _run_history(run: Path, state: dict) -> list[dict]:
+    """Every epoch's history row of ``run`` (its last.pt), or ``state``'s where the run has none."""
     from nbvtrain.checkpoint import load_checkpoint
 
+    last = run / "last.pt"
+    return load_checkpoint(last)["history"] if last.is_file() else state["history"]
+
+
+def _lineage(run: Path, state: dict) -> list[str]:
+    """The card's line on the checkpoints ``run`` started from, for its checkpoint ``state``."""
+    data = json.loads((run / "data.json").read_text())
+    epoch = state["history"][-1]["epoch"]
+    return _lineage_lines(data, epoch, sum(row["seconds"] for row in _run_history(run, state)[:epoch]))
+
+
+def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path, lineage: list[str]) -> str:
     data = json.loads((run / "data.json").read_text())
     manifest = data.get("manifest")
-    last = run / "last.pt"
-    history = load_checkpoint(last)["history"] if last.is_file() else state["history"]  # the whole run
+    history = _run_history(run, state)  # the whole run
     best = state["history"][-1]  # a checkpoint is saved at its epoch
     chosen = ("best epoch (lowest validation loss)" if checkpoint == run / "best.pt"
               else f"epoch `{checkpoint.relative_to(run)}` of the run")
@@ -192,7 +205,7 @@ def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Pat
     lines += [f"- Settings: {settings}.",
               f"- Training: {len(history)} epochs in {seconds / 60:.1f} min of wall time{where}; released: the "
               f"{chosen}, epoch {best['epoch']}.",
-              *_lineage_lines(data, best["epoch"], sum(row["seconds"] for row in history[:best["epoch"]])),
+              *lineage,
               f"- Validation samples at the released epoch: loss {best['val_loss']:.4f}, gain ratio "
               f"{best.get('val_gain_ratio', float('nan')):.3f}, invalid picks "
               f"{100 * best.get('val_invalid_share', float('nan')):.1f} %, angle to the label "
@@ -227,8 +240,11 @@ def _added_lines(data: dict) -> list[str]:
 def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
     """The card's line on the checkpoints a run started from (``fit --init``), followed through the
     run folders still on disk, with the epochs and wall time of the whole chain up to the release
-    (``epochs``, ``seconds``: the released run's own)."""
-    from nbvtrain.checkpoint import load_checkpoint
+    (``epochs``, ``seconds``: the released run's own). A checkpoint outside any run folder (a released
+    file) counts by its own history while it still holds the recorded bytes; where neither is found,
+    the chain's time is unknown."""
+    from nbvdata.mesh import sha256_file
+    from nbvtrain.checkpoint import CheckpointError, load_checkpoint
 
     steps, known, seen = [], True, set()
     init = data.get("init")
@@ -238,13 +254,21 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
         steps.append(f"`{_shown(path)}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
         epochs += init["epoch"]
         try:
-            run, _ = run_of(path)
+            if sha256_file(path) != init["sha256"]:
+                raise ValueError("the file was replaced since")
+            try:
+                run, _ = run_of(path)
+            except ConfigError:  # no run folder: the checkpoint's own history, and no further ancestor known
+                state = load_checkpoint(path)
+                seconds += sum(row["seconds"] for row in state["history"][:init["epoch"]])
+                known, init = not state["config"].get("init"), None
+                continue
             last = run / "last.pt"
             history = load_checkpoint(last if last.is_file() else path)["history"]
             seconds += sum(row["seconds"] for row in history[:init["epoch"]])
             init = json.loads((run / "data.json").read_text()).get("init")
-        except (ConfigError, OSError, ValueError, KeyError):
-            known, init = False, None  # the ancestor's run is not on this machine: its time is unknown
+        except (ConfigError, CheckpointError, OSError, ValueError, KeyError):
+            known, init = False, None  # the ancestor is not on this machine (or not as it was): time unknown
     if not steps:
         return []
     total = (f"{epochs} epochs in {seconds / 60:.1f} min of wall time" if known

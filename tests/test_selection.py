@@ -275,6 +275,27 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     assert not (tmp_path / "no").exists()
 
 
+def test_a_run_started_from_a_released_file_keeps_its_chain_when_released_over_it(version, tmp_path):
+    manifest, _ = version
+    first = tmp_path / "first"
+    assert main(["fit", str(manifest), "--split", "mesh", "--epochs", "1", "--out", str(first), *FAST]) == 0
+    shelf = tmp_path / "released"
+    assert main(["release", "--regression", str(first), "--out", str(shelf)]) == 0
+    package = shelf / "nbvnet-3-3.pt"  # float16, outside any run folder
+    started = hashlib.sha256(package.read_bytes()).hexdigest()
+    tuned = tmp_path / "tuned"
+    assert main(["fit", str(manifest), "--split", "mesh", "--init", str(package), "--epochs", "1",
+                 "--out", str(tuned), *FAST]) == 0
+    assert main(["release", "--regression", str(tuned), "--out", str(shelf)]) == 0  # replaces the file it started from
+    assert hashlib.sha256(package.read_bytes()).hexdigest() != started
+    seconds = sum(torch.load(run / "last.pt", weights_only=True)["history"][0]["seconds"] for run in (first, tuned))
+    card = (shelf / "MODEL_CARD.md").read_text()
+    assert (f"- Started from (`fit --init`): `nbvnet-3-3.pt` (epoch 1, sha256 {started[:12]}); the chain in all: "
+            f"2 epochs in {seconds / 60:.1f} min of wall time." in card)
+    assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "later")]) == 0  # the file is gone now
+    assert "the chain in all: at least 2 epochs" in (tmp_path / "later" / "MODEL_CARD.md").read_text()
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--add-train", "DAGGER"], "add --split mesh"),                          # the random split mixes objects
     (["--split", "mesh", "--init", "FIRST", "--model", "nbvnet-3-5"], "a nbvnet-3-3 checkpoint"),
