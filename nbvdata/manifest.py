@@ -407,6 +407,7 @@ class Problem:
     kind: str
     path: str
     detail: str = ""
+    arrays: tuple[str, ...] = ()  # ``changed`` by content: the arrays (and "attributes") that differ
 
     def __str__(self) -> str:
         return f"{self.kind}: {self.path}" + (f": {self.detail}" if self.detail else "")
@@ -469,7 +470,7 @@ def _check_shard(path: Path, entry: dict, by_content: bool = False) -> Problem |
         differ = sorted(key for key in entry["content"].keys() | digests.keys()
                         if entry["content"].get(key) != digests.get(key))
         if differ:
-            return Problem("changed", name, f"{detail}; content differs in {', '.join(differ)}")
+            return Problem("changed", name, f"{detail}; content differs in {', '.join(differ)}", tuple(differ))
         if not by_content:
             return Problem("changed", name, f"{detail}; same content (every array and attribute equal): "
                                             "nbvdata verify --content accepts it")
@@ -487,13 +488,26 @@ def open_verified(path: str | Path, root: str | Path | None = None) -> Published
     """The manifest, once its shards are verified; ManifestError listing the problems otherwise.
 
     Extra shards beside the listed ones are no problem here: only the listed ones are read."""
+    return open_verified_for(path, root)[0]
+
+
+def open_verified_for(path: str | Path, root: str | Path | None = None,
+                      unread: frozenset[str] = frozenset()) -> tuple[Published, list[Problem]]:
+    """``open_verified`` for a reader that never reads the arrays ``unread`` (a grid network, the
+    point clouds): a shard whose content differs in those arrays only is accepted, and returned
+    with the manifest - (the manifest, the shards accepted so; every other array and the attributes
+    equal, so the same samples). ManifestError listing any other problem."""
     verification = verify(path, root)
-    problems = [str(problem) for problem in verification.problems if problem.kind != "extra"]
+    accepted = [problem for problem in verification.problems
+                if problem.kind == "changed" and problem.arrays and set(problem.arrays) <= unread]
+    problems = [str(problem) for problem in verification.problems
+                if problem.kind != "extra" and problem not in accepted]
     if problems:
-        raise ManifestError(f"{path}: {len(problems)} shards differ from the published "
+        raise ManifestError(f"{path}: {plural(len(problems), 'shard')} {'differs' if len(problems) == 1 else 'differ'} "
+                            f"from the published "
                             f"{verification.published.label} ({'; '.join(problems)}): restore them from a "
                             "good copy, or train on the shards themselves instead of the manifest")
-    return verification.published
+    return verification.published, accepted
 
 
 # ---------------------------------------------------------------------------------------------

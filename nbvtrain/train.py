@@ -39,12 +39,12 @@ import yaml
 from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
-from nbvdata.manifest import Published, open_verified
+from nbvdata.manifest import Published, open_verified_for
 from nbvdata.mesh import sha256_file
 from nbvdata.text import plural
 from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, model_from, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
-from nbvdata.shards import ShardError
+from nbvdata.shards import CLOUDS, ShardError
 from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
                            split_indices, to_grids)
 from nbvtrain.metrics import evaluate, format_ratio
@@ -160,7 +160,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     if config.threads:
         torch.set_num_threads(config.threads)
     device = resolve_device(config.device)
-    shards, published, added = _sources(list(shards), manifest, root, out, resume, list(add_train))
+    points = architecture(config.model).inputs == "points"
+    shards, published, added = _sources(list(shards), manifest, root, out, resume, list(add_train), points, log)
     if published is not None:
         log(f"{published.label}: {plural(len(shards), 'shard')} verified against {published.path} "
             f"(sha256 {published.sha256[:12]})")
@@ -172,7 +173,6 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         started_from = {"path": str(Path(config.init).resolve()), "sha256": init["sha256"], "epoch": init["epoch"]}
     else:
         started_from = None
-    points = architecture(config.model).inputs == "points"
     data = load_shards(shards + added, config.memory_limit_gb, config.mixed_scenes,
                        clouds=config.model if points else None, grids=not points)
     try:
@@ -256,9 +256,11 @@ def _saved_data(out: Path) -> dict:
 
 
 def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: Path, resume: bool,
-             added: list[Path]) -> tuple[list[Path], Published | None, list[Path]]:
+             added: list[Path], points: bool,
+             log: Callable[[str], None]) -> tuple[list[Path], Published | None, list[Path]]:
     """The shards to train on, when they are a published version's its verified manifest, and the
-    shards added to its training part.
+    shards added to its training part. A network that reads no clouds (``points`` False) accepts a
+    published shard whose clouds alone differ (hit points can differ in their last bits across CPUs).
 
     A resumed run without shards or manifest reuses its own; a resumed run of a published
     version must find the same manifest bytes (sha256) and shards, and the same added shards."""
@@ -281,7 +283,12 @@ def _sources(shards: list[Path], manifest: Path | None, root: Path | None, out: 
                               "(nbvtrain fit manifests/NAME-X.Y.Z.json --split mesh --add-train DIR), or list "
                               "every folder as shards")
         return shards, None, []
-    published = open_verified(manifest, root)
+    published, accepted = open_verified_for(manifest, root, frozenset() if points else CLOUDS)
+    if accepted:
+        differ = sorted({array for problem in accepted for array in problem.arrays})
+        log(f"{published.label}: {plural(len(accepted), 'shard')} {'differs' if len(accepted) == 1 else 'differ'} "
+            f"from the published ones in {', '.join(differ)} only, which this network does not read: trained on "
+            "as they are (nbvdata verify names them)")
     if recorded is not None and published.sha256 != recorded["sha256"]:
         raise ConfigError(f"--resume: {out} trains on {recorded['name']} {recorded['version']} (manifest sha256 "
                           f"{recorded['sha256'][:12]}), but {manifest} has sha256 {published.sha256[:12]}: "

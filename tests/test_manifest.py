@@ -386,3 +386,44 @@ def test_fit_refuses_a_tampered_version(shards, published, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"changed: {victim.name}: sha256 differs" in err and len(err.strip().splitlines()) == 1
     assert not run.exists()
+
+
+@pytest.fixture(scope="module")
+def clouds(tmp_path_factory) -> Path:
+    """Two built-in shapes, one run each with 32-point clouds, published as clouds 1.0.0 (its manifest)."""
+    base = tmp_path_factory.mktemp("clouds")
+    report = generate(builtin_sources()[:2], base / "shards", _smoke("episode.runs_per_mesh=1", "state.points=32"))
+    assert not report.failures
+    assert nbvdata(["publish", str(base / "shards"), "--name", "clouds", "--version", "1.0.0",
+                    "--manifests", str(base / "manifests")]) == 0
+    return base / "manifests" / "clouds-1.0.0.json"
+
+
+def _nudged(path: Path, array: str) -> None:
+    def nudge(arrays):
+        arrays[array].flat[0] = np.nextafter(arrays[array].flat[0], np.float32(1))
+
+    _rewrite(path, nudge)
+
+
+def test_a_grid_network_trains_on_a_version_whose_clouds_alone_differ(clouds, tmp_path, capsys):
+    """Hit points can differ in their last bits on another CPU (Embree may report either triangle of
+    an edge a ray meets); a network that reads no clouds trains on such a regeneration, one that
+    reads them, or any network on a shard whose grids or labels differ, is refused."""
+    copy = _copy(clouds.parent.parent / "shards", tmp_path / "copy")
+    _nudged(sorted(copy.glob("*.h5"))[0], "points")
+    assert nbvdata(["verify", str(clouds), "--root", str(copy)]) == 1
+    assert "content differs in points" in capsys.readouterr().out
+    fit = ["fit", str(clouds), "--root", str(copy), "--split", "random", "--epochs", "1"]
+    assert nbvtrain([*fit, "--out", str(tmp_path / "grid"), *FAST]) == 0
+    assert "1 shard differs from the published ones in points only, which this network does not read" in \
+        capsys.readouterr().out
+    assert nbvtrain([*fit, "--out", str(tmp_path / "cloud"), "--model", "nbvscore-pc", "--batch-size", "16",
+                     "--threads", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "content differs in points" in err and "restore them" in err
+    _nudged(sorted(copy.glob("*.h5"))[1], "gains")
+    assert nbvtrain([*fit, "--out", str(tmp_path / "labels"), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "1 shard differs from the published" in err and "content differs in gains" in err
+    assert not (tmp_path / "cloud").exists() and not (tmp_path / "labels").exists()
