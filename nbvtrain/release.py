@@ -248,12 +248,16 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
 
     steps, known, seen = [], True, set()
     init = data.get("init")
-    while init and init["sha256"] not in seen:  # (a hand-edited data.json could loop)
+    while isinstance(init, dict) and init["sha256"] not in seen:  # (a hand-edited data.json could loop)
         seen.add(init["sha256"])
         path = Path(init["path"])
         steps.append(f"`{_shown(path)}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
         epochs += init["epoch"]
-        try:
+        if "seconds" in init:  # recorded when the run started (fit --init): the chain as it was then
+            seconds += init["seconds"]
+            known, init = known and init.get("from") != "unknown", init.get("from")
+            continue
+        try:  # a record of an older nbvtrain: followed through the run folders still on disk
             if sha256_file(path) != init["sha256"]:
                 raise ValueError("the file was replaced since")
             try:

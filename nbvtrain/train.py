@@ -42,7 +42,7 @@ from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
 from nbvdata.manifest import Published, open_verified_for
 from nbvdata.mesh import sha256_file
 from nbvdata.text import plural
-from nbvtrain.checkpoint import RESUME_KEYS, load_checkpoint, model_from, restore, save_checkpoint
+from nbvtrain.checkpoint import RESUME_KEYS, CheckpointError, load_checkpoint, model_from, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
 from nbvdata.shards import CLOUDS, ShardError
 from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
@@ -168,9 +168,9 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
     init = None if resumed is not None or config.init is None else _init_checkpoint(config)
     if resumed is not None:  # data.json's record of the checkpoint the run started from stays
-        started_from = _saved_data(out).get("init")
+        started_from = _completed(_saved_data(out).get("init"))
     elif init is not None:
-        started_from = {"path": str(Path(config.init).resolve()), "sha256": init["sha256"], "epoch": init["epoch"]}
+        started_from = _started_from(Path(config.init), init)
     else:
         started_from = None
     data = load_shards(shards + added, config.memory_limit_gb, config.mixed_scenes,
@@ -247,6 +247,36 @@ def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
                          "hold them for one common view set (imported data has none): train it on shards written by "
                          "nbvdata generate" + ("" if task == "scores" else ", or use regression_loss=label"))
     return load_view_states(data.paths, poses="refuse" if task == "scores" else "nearest")
+
+
+def _started_from(path: Path, init: dict) -> dict:
+    """data.json's record of the checkpoint a run starts from (``fit --init``), made while it is at
+    hand: its path, sha256 and epoch, the wall time of its epochs (its own history) and, under
+    ``from``, the record of the checkpoint it started from in turn - its run's data.json "init", or
+    "unknown" where it started from one and its run is not on this machine. The release card reads
+    the whole chain from here, even after the files are gone or replaced (a package's own file)."""
+    record = {"path": str(path.resolve()), "sha256": init["sha256"], "epoch": init["epoch"],
+              "seconds": float(sum(row["seconds"] for row in init["history"][:init["epoch"]]))}
+    run = next((folder for folder in path.resolve().parents if (folder / "data.json").is_file()), None)
+    ancestor = _saved_data(run).get("init") if run is not None else None
+    if ancestor is None and init["config"].get("init"):
+        ancestor = "unknown"
+    return record if ancestor is None else {**record, "from": ancestor}
+
+
+def _completed(record: dict | None) -> dict | None:
+    """An older nbvtrain's ``init`` record (path, sha256, epoch) made whole by ``_started_from``
+    while its checkpoint is still the recorded file; as it is otherwise."""
+    if not record or "seconds" in record:
+        return record
+    path = Path(record["path"])
+    try:
+        if sha256_file(path) != record["sha256"]:
+            return record
+        state = load_checkpoint(path)
+    except (OSError, CheckpointError):
+        return record
+    return _started_from(path, state | {"sha256": record["sha256"]})
 
 
 def _saved_data(out: Path) -> dict:

@@ -245,12 +245,14 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
             f"epoch 1 (sha256 {init['sha256'][:12]})." in card)
     assert (f"- Started from (`fit --init`): `best.pt` (epoch 1, sha256 {init['sha256'][:12]}); the chain in all: "
             f"2 epochs in {seconds / 60:.1f} min of wall time." in card)
-    record = (tuned / "data.json").read_text()  # the checkpoint it started from made on another machine
-    (tuned / "data.json").write_text(json.dumps({**data, "init": {**init, "path": str(tmp_path / "elsewhere.pt")}}))
+    assert init["seconds"] == torch.load(first / "best.pt", weights_only=True)["history"][0]["seconds"]
+    record = (tuned / "data.json").read_text()  # an older nbvtrain's record (no time), of a file not here
+    old = {key: init[key] for key in ("path", "sha256", "epoch")}
+    (tuned / "data.json").write_text(json.dumps({**data, "init": {**old, "path": str(tmp_path / "elsewhere.pt")}}))
     assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "elsewhere")]) == 0
     card = (tmp_path / "elsewhere" / "MODEL_CARD.md").read_text()
     assert "the chain in all: at least 2 epochs (a run of the chain is not on this machine" in card
-    (tuned / "data.json").write_text(record)
+    (tuned / "data.json").write_text(json.dumps({**data, "init": old}))  # ... of a file still here
     # benchmarks/regression_answers.py --shards: the policy's own states, its poses as their nearest views
     answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(first),
                               str(first / "best.pt"), "--shards", str(dagger), "--samples", "5"],
@@ -259,7 +261,8 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     # resuming reuses the added shards; other ones are refused
     assert main(["fit", "--resume", "--epochs", "2", "--out", str(tuned), "--no-progress"]) == 0
     resumed = json.loads((tuned / "data.json").read_text())
-    assert resumed["train_samples"] == data["train_samples"] and resumed["init"] == init  # the record stays
+    assert resumed["train_samples"] == data["train_samples"] and resumed["init"] == init  # the record, completed
+    (tuned / "data.json").write_text(record)
     capsys.readouterr()
     others = manifest.parent.parent / "shards"
     assert main(["fit", "--resume", "--epochs", "3", "--add-train", str(others), "--out", str(tuned), "--no-progress"]) == 2
@@ -288,12 +291,32 @@ def test_a_run_started_from_a_released_file_keeps_its_chain_when_released_over_i
                  "--out", str(tuned), *FAST]) == 0
     assert main(["release", "--regression", str(tuned), "--out", str(shelf)]) == 0  # replaces the file it started from
     assert hashlib.sha256(package.read_bytes()).hexdigest() != started
-    seconds = sum(torch.load(run / "last.pt", weights_only=True)["history"][0]["seconds"] for run in (first, tuned))
-    card = (shelf / "MODEL_CARD.md").read_text()
-    assert (f"- Started from (`fit --init`): `nbvnet-3-3.pt` (epoch 1, sha256 {started[:12]}); the chain in all: "
-            f"2 epochs in {seconds / 60:.1f} min of wall time." in card)
-    assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "later")]) == 0  # the file is gone now
-    assert "the chain in all: at least 2 epochs" in (tmp_path / "later" / "MODEL_CARD.md").read_text()
+    seconds = [torch.load(run / "last.pt", weights_only=True)["history"][0]["seconds"] for run in (first, tuned)]
+    line = (f"- Started from (`fit --init`): `nbvnet-3-3.pt` (epoch 1, sha256 {started[:12]}); the chain in all: "
+            f"2 epochs in {sum(seconds) / 60:.1f} min of wall time.")
+    assert line in (shelf / "MODEL_CARD.md").read_text()
+    # the chain was recorded when each run started: neither the first run nor the file is needed later
+    shutil.rmtree(first)
+    package.unlink()
+    assert main(["release", "--regression", str(tuned), "--out", str(tmp_path / "later")]) == 0
+    assert line in (tmp_path / "later" / "MODEL_CARD.md").read_text()
+    again = tmp_path / "again"
+    assert main(["fit", str(manifest), "--split", "mesh", "--init", str(tuned / "best.pt"), "--epochs", "1",
+                 "--out", str(again), *FAST]) == 0
+    assert main(["release", "--regression", str(again), "--out", str(tmp_path / "third")]) == 0
+    seconds.append(torch.load(again / "last.pt", weights_only=True)["history"][0]["seconds"])
+    tuned_sha = hashlib.sha256((tuned / "best.pt").read_bytes()).hexdigest()
+    assert (f"`best.pt` (epoch 1, sha256 {tuned_sha[:12]}), which started from `nbvnet-3-3.pt` (epoch 1, sha256 "
+            f"{started[:12]}); the chain in all: 3 epochs in {sum(seconds) / 60:.1f} min of wall time." in
+            (tmp_path / "third" / "MODEL_CARD.md").read_text())
+    # a checkpoint that started from another, whose run is not on this machine: the chain's time is unknown
+    (tuned / "data.json").unlink()
+    elsewhere = tmp_path / "elsewhere"
+    assert main(["fit", str(manifest), "--split", "mesh", "--init", str(tuned / "best.pt"), "--epochs", "1",
+                 "--out", str(elsewhere), *FAST]) == 0
+    assert json.loads((elsewhere / "data.json").read_text())["init"]["from"] == "unknown"
+    assert main(["release", "--regression", str(elsewhere), "--out", str(tmp_path / "fourth")]) == 0
+    assert "the chain in all: at least 2 epochs" in (tmp_path / "fourth" / "MODEL_CARD.md").read_text()
 
 
 @pytest.mark.parametrize("flags, message", [
