@@ -123,11 +123,12 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
                               for key, value in state["state_dict"].items()}
         slim["released_from"] = str(checkpoint)
         path = out / f"{state['model']}.pt"
-        lineage = _lineage(run, state)  # before writing: the run may have started from the file it replaces
+        history = _run_history(run, state)
+        lineage = _lineage(run, state, history)  # before writing: the run may have started from the file it replaces
         save_checkpoint(path, slim)
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
-        sections[task] = _card_section(task, run, checkpoint, state, path, lineage)
+        sections[task] = _card_section(task, run, checkpoint, state, path, history, lineage)
     answers = {task: answers[task] for task in TASKS if task in answers}  # the card's order, whatever came last
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
@@ -174,17 +175,19 @@ def _run_history(run: Path, state: dict) -> list[dict]:
     return load_checkpoint(last)["history"] if last.is_file() else state["history"]
 
 
-def _lineage(run: Path, state: dict) -> list[str]:
-    """The card's line on the checkpoints ``run`` started from, for its checkpoint ``state``."""
+def _lineage(run: Path, state: dict, history: list[dict]) -> list[str]:
+    """The card's line on the checkpoints ``run`` started from, for its checkpoint ``state``
+    (``history``: the whole run's)."""
     data = json.loads((run / "data.json").read_text())
     epoch = state["history"][-1]["epoch"]
-    return _lineage_lines(data, epoch, sum(row["seconds"] for row in _run_history(run, state)[:epoch]))
+    return _lineage_lines(data, epoch, sum(row["seconds"] for row in history[:epoch]))
 
 
-def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path, lineage: list[str]) -> str:
+def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path, history: list[dict],
+                  lineage: list[str]) -> str:
+    """``history``: every epoch of the run; ``lineage``: ``_lineage``'s lines."""
     data = json.loads((run / "data.json").read_text())
     manifest = data.get("manifest")
-    history = _run_history(run, state)  # the whole run
     best = state["history"][-1]  # a checkpoint is saved at its epoch
     chosen = ("best epoch (lowest validation loss)" if checkpoint == run / "best.pt"
               else f"epoch `{checkpoint.relative_to(run)}` of the run")
@@ -238,41 +241,24 @@ def _added_lines(data: dict) -> list[str]:
 
 
 def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
-    """The card's line on the checkpoints a run started from (``fit --init``), followed through the
-    run folders still on disk, with the epochs and wall time of the whole chain up to the release
-    (``epochs``, ``seconds``: the released run's own). A checkpoint outside any run folder (a released
-    file) counts by its own history while it still holds the recorded bytes; where neither is found,
-    the chain's time is unknown."""
-    from nbvdata.mesh import sha256_file
-    from nbvtrain.checkpoint import CheckpointError, load_checkpoint
+    """The card's line on the checkpoints a run started from (``fit --init``), as its data.json
+    recorded them (``nbvtrain.train.init_record``; an older record is completed while its file is
+    still here), with the epochs and wall time of the whole chain up to the release (``epochs``,
+    ``seconds``: the released run's own); where a link has no recorded time, the chain's is unknown."""
+    from nbvtrain.train import completed_init_record
 
     steps, known, seen = [], True, set()
     init = data.get("init")
     while isinstance(init, dict) and init["sha256"] not in seen:  # (a hand-edited data.json could loop)
         seen.add(init["sha256"])
-        path = Path(init["path"])
-        steps.append(f"`{_shown(path)}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
+        steps.append(f"`{_shown(Path(init['path']))}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
         epochs += init["epoch"]
-        if "seconds" in init:  # recorded when the run started (fit --init): the chain as it was then
-            seconds += init["seconds"]
-            known, init = known and init.get("from") != "unknown", init.get("from")
-            continue
-        try:  # a record of an older nbvtrain: followed through the run folders still on disk
-            if sha256_file(path) != init["sha256"]:
-                raise ValueError("the file was replaced since")
-            try:
-                run, _ = run_of(path)
-            except ConfigError:  # no run folder: the checkpoint's own history, and no further ancestor known
-                state = load_checkpoint(path)
-                seconds += sum(row["seconds"] for row in state["history"][:init["epoch"]])
-                known, init = not state["config"].get("init"), None
-                continue
-            last = run / "last.pt"
-            history = load_checkpoint(last if last.is_file() else path)["history"]
-            seconds += sum(row["seconds"] for row in history[:init["epoch"]])
-            init = json.loads((run / "data.json").read_text()).get("init")
-        except (ConfigError, CheckpointError, OSError, ValueError, KeyError):
-            known, init = False, None  # the ancestor is not on this machine (or not as it was): time unknown
+        init = completed_init_record(init)
+        if "seconds" not in init:  # the ancestor is not on this machine (or not as it was)
+            known = False
+            break
+        seconds += init["seconds"]
+        known, init = known and init.get("from") != "unknown", init.get("from")
     if not steps:
         return []
     total = (f"{epochs} epochs in {seconds / 60:.1f} min of wall time" if known

@@ -168,9 +168,9 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     resumed = None if checkpoint is None else _restored(config, checkpoint, out, device)  # before the data: its errors first
     init = None if resumed is not None or config.init is None else _init_checkpoint(config)
     if resumed is not None:  # data.json's record of the checkpoint the run started from stays
-        started_from = _completed(_saved_data(out).get("init"))
+        started_from = completed_init_record(_saved_data(out).get("init"))
     elif init is not None:
-        started_from = _started_from(Path(config.init), init)
+        started_from = init_record(Path(config.init), init)
     else:
         started_from = None
     data = load_shards(shards + added, config.memory_limit_gb, config.mixed_scenes,
@@ -249,12 +249,12 @@ def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
     return load_view_states(data.paths, poses="refuse" if task == "scores" else "nearest")
 
 
-def _started_from(path: Path, init: dict) -> dict:
-    """data.json's record of the checkpoint a run starts from (``fit --init``), made while it is at
-    hand: its path, sha256 and epoch, the wall time of its epochs (its own history) and, under
-    ``from``, the record of the checkpoint it started from in turn - its run's data.json "init", or
-    "unknown" where it started from one and its run is not on this machine. The release card reads
-    the whole chain from here, even after the files are gone or replaced (a package's own file)."""
+def init_record(path: Path, init: dict) -> dict:
+    """data.json's record of the checkpoint ``init`` (at ``path``, its sha256 added) a run starts from
+    (``fit --init``), made while it is at hand: its path, sha256 and epoch, the wall time of its epochs
+    (its own history) and, under ``from``, the record of the checkpoint it started from in turn - its
+    run's data.json "init", or "unknown" where it started from one and its run is not on this machine.
+    The release card reads the whole chain from here, even after the files are gone or replaced."""
     record = {"path": str(path.resolve()), "sha256": init["sha256"], "epoch": init["epoch"],
               "seconds": float(sum(row["seconds"] for row in init["history"][:init["epoch"]]))}
     run = next((folder for folder in path.resolve().parents if (folder / "data.json").is_file()), None)
@@ -264,19 +264,18 @@ def _started_from(path: Path, init: dict) -> dict:
     return record if ancestor is None else {**record, "from": ancestor}
 
 
-def _completed(record: dict | None) -> dict | None:
-    """An older nbvtrain's ``init`` record (path, sha256, epoch) made whole by ``_started_from``
-    while its checkpoint is still the recorded file; as it is otherwise."""
+def completed_init_record(record: dict | None) -> dict | None:
+    """An older nbvtrain's ``init`` record (path, sha256, epoch) made whole by ``init_record`` while
+    its checkpoint is still the recorded file; as it is otherwise (no "seconds": its time unknown)."""
     if not record or "seconds" in record:
         return record
     path = Path(record["path"])
     try:
         if sha256_file(path) != record["sha256"]:
             return record
-        state = load_checkpoint(path)
-    except (OSError, CheckpointError):
+        return init_record(path, load_checkpoint(path) | {"sha256": record["sha256"]})
+    except (OSError, CheckpointError, ValueError, KeyError):  # gone, unreadable, or a malformed run folder
         return record
-    return _started_from(path, state | {"sha256": record["sha256"]})
 
 
 def _saved_data(out: Path) -> dict:
