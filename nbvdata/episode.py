@@ -18,7 +18,8 @@ and with a policy (``nbvdata.policy``) the moves are the policy's, mixed with th
 policy's pose that is no candidate view is scanned live, whatever the sensor.
 
 With ``state.points`` > 0 each recorded state also holds its partial point cloud: every hit the
-run's scans returned so far (range noise included), reduced to that many points by
+run's scans returned so far (range noise included; each on its ray's canonical triangle,
+``nbvdata.sensor``, so the same on every CPU), reduced to that many points by
 farthest-point sampling (``nbvdata.cloud``); a noise-free view's hits are cached with its grid
 update.
 
@@ -51,8 +52,9 @@ ORACLE, EXPLORE, POLICY, NO_MOVE = 0, 1, 2, -1
 
 
 class ViewCache:
-    """Each candidate view's grid update and, with ``points``, its (H, 3) float32 hit points,
-    computed on the first visit (noise-free scans only)."""
+    """Each candidate view's grid update and, with ``points``, its (H, 3) float32 hit points as
+    the clouds keep them (``Scan.cloud_points``), computed on the first visit (noise-free scans
+    only)."""
 
     def __init__(self, scene: Scene, points: bool = False):
         self.scene = scene
@@ -65,7 +67,7 @@ class ViewCache:
             scan = self.scene.scanner.scan(self.scene.views[view])
             self._updates[view] = self._grid.scan_update(scan, self.scene.config.sensor.far)
             if self._hits is not None:
-                self._hits[view] = scan.hit_points
+                self._hits[view] = scan.cloud_points
         return self._updates[view]
 
     def hit_points(self, view: int) -> np.ndarray:
@@ -114,12 +116,11 @@ class Reconstruction:
         covered points as ``scan(view)``."""
         scan = self.scene.scanner.scan(pose, self.rng)
         self.scene.integrate(self.grid, scan)
-        hits = scan.hit_points
-        seen = pack_bits(self.scene.coverage.covered_by(hits))
+        seen = pack_bits(self.scene.coverage.covered_by(scan.hit_points))
         self.covered |= seen
         self.scans += 1
         if self.cloud is not None:
-            self.cloud.add(hits)
+            self.cloud.add(scan.cloud_points)
         return seen
 
 

@@ -13,6 +13,15 @@ and each hit's distance (from the ray and the plane of the triangle Embree repor
 computed here, in float64 with a fixed order of operations and no fused multiply-add
 (numba without fastmath), and only the triangle ids come from Embree.
 
+Which triangle a ray meets at an edge is Embree's float32 decision, and another instruction set
+may give it to the neighbour, whose plane puts the hit a few ulps away. The grids and coverage
+do not see that (a point moves into another voxel or cell only within those ulps of a face);
+the partial clouds keep each point's exact position, so they take it from the *canonical*
+triangle: a hit within ``EDGE_TOLERANCE`` of its triangle's border is moved to the plane of the
+lowest-numbered of the triangles around that triangle's corners that the ray meets nearest
+(within that tolerance of their border, within ``DEPTH_TOLERANCE`` of the nearest) - the same
+triangle whichever of them Embree reported (``Scan.cloud``; ``_canonical_distances``).
+
 Only the rays that meet the mesh's bounding box (slightly enlarged) go to Embree: the others
 cannot hit it. Embree traces every ray on its own, so the subset changes no ray's answer (tested
 against casting every ray), and a scan of a small object costs a fraction of the full image.
@@ -33,6 +42,11 @@ from nbvdata.config import SensorConfig
 from nbvdata.views import Pose, ViewSet
 
 NO_HIT = np.uint32(2**32 - 1)  # Embree's primitive id of a ray that hits nothing
+# A hit nearer than this to its triangle's border (metres, in the triangle's plane) may be given
+# to a neighbour by another CPU's Embree, which decides in float32 (to about 1e-7 m here).
+EDGE_TOLERANCE = 2.0**-18  # 3.8 um
+# Candidates met this much farther along the ray than the nearest one are not the same hit.
+DEPTH_TOLERANCE = 2.0**-20  # 0.95 um
 _EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets (MeshScanner(bounded=False))
 # Rays per open3d call; bounds the rays buffer to about 64 views x 25k rays x 24 B = 40 MB.
 _RAYS_PER_CALL = 64 * 176 * 144
@@ -46,16 +60,25 @@ class Scan:
     points : (N, 3) float32, N = width * height; the hit point of each ray, or for rays with
              no return a point at twice the far range along the ray
     hit : (N,) bool, True where the ray returned a measurement
+    cloud : (H, 3) float32 the measured points as the partial clouds keep them, each on its
+            ray's canonical triangle (module docstring); None: ``hit_points`` (a scan not cast
+            here, e.g. a real sensor's)
     """
 
     origin: np.ndarray
     points: np.ndarray
     hit: np.ndarray
+    cloud: np.ndarray | None = None
 
     @property
     def hit_points(self) -> np.ndarray:
         """(H, 3) float32 the measured surface points only."""
         return self.points[self.hit]
+
+    @property
+    def cloud_points(self) -> np.ndarray:
+        """(H, 3) float32 the measured points for a partial cloud: ``cloud``, else ``hit_points``."""
+        return self.hit_points if self.cloud is None else self.cloud
 
 
 def camera_rays(config: SensorConfig) -> np.ndarray:
@@ -86,6 +109,7 @@ class MeshScanner:
         self._box = _enlarged_box(self._vertices) if bounded and len(self._vertices) else _EVERYWHERE
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
+        self._rings = triangle_rings(self._vertices, self._faces)
         self._camera_rays = camera_rays(config)
         self._tangents = np.array([np.tan(config.hfov / 2), np.tan(config.vfov / 2)])
 
@@ -119,7 +143,7 @@ class MeshScanner:
         """The (H, 3) float32 hit points of a noise-free scan from each pose, the same as
         ``scan.hit_points``, without the end points of the rays that return nothing."""
         for positions, rotations in self._batches(poses):
-            rays, cast, t_cast = self._distances(positions, rotations, every=False)
+            rays, cast, t_cast, _ = self._distances(positions, rotations, every=False)
             points, counts = _hit_points(rays, cast, t_cast, self.config.near, self.config.far, self.rays_per_scan,
                                          len(positions))
             yield from np.split(points, np.cumsum(counts)[:-1])
@@ -143,7 +167,7 @@ class MeshScanner:
         Returns rays (V * N, 6) float32 (origin, direction; with ``every`` False only the rays
         near the mesh's box are set), cast (C,) int64 ascending indices of the rays cast (those
         meeting the box), t_cast (C,) float64 their distance to the plane of the triangle hit,
-        inf for none.
+        inf for none, and t_cloud (C,) float64 the same to the plane of the canonical triangle.
         """
         n_views, n_rays = len(positions), self.rays_per_scan
         rays = np.empty((n_views * n_rays, 6), dtype=np.float32)
@@ -152,21 +176,29 @@ class MeshScanner:
                    rays, near_box)
         cast = np.flatnonzero(near_box)
         t_cast = np.empty(len(cast), dtype=np.float64)
-        _plane_distances(rays, cast, self._triangles(rays[cast]), self._vertices, self._faces, t_cast)
-        return rays, cast, t_cast
+        t_cloud = np.empty(len(cast), dtype=np.float64)
+        triangles = self._triangles(rays[cast])
+        _plane_distances(rays, cast, triangles, self._vertices, self._faces, t_cast)
+        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._rings, t_cloud)
+        return rays, cast, t_cast, t_cloud
 
     def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
-        rays, cast, t_cast = self._distances(positions, rotations)
+        rays, cast, t_cast, t_cloud = self._distances(positions, rotations)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
-            t_cast[finite] += rng.normal(0.0, self.config.noise_std, int(finite.sum()))
+            noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
+            t_cast[finite] += noise
+            t_cloud[finite] += noise  # finite where t_cast is: the same draw for the same ray
         t_hit = np.full(n_views * n_rays, np.inf)
         t_hit[cast] = t_cast
         points = np.empty((n_views, n_rays, 3), dtype=np.float32)
         hit = np.empty((n_views, n_rays), dtype=bool)
         _end_points(rays, t_hit, self.config.near, self.config.far, points.reshape(-1, 3), hit.reshape(-1))
-        return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v]) for v in range(n_views)]
+        t_hit[cast] = t_cloud  # the clouds' points, on the canonical triangles, for the same hits
+        cloud, counts = _points_at(rays, t_hit, hit.reshape(-1), n_rays, n_views)
+        clouds = np.split(cloud, np.cumsum(counts)[:-1])
+        return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v], clouds[v]) for v in range(n_views)]
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:
         """(M,) uint32 the triangle each of ``rays`` (M, 6) float32 hits first, NO_HIT for none."""
@@ -292,6 +324,128 @@ def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
         along = (nx * dx + ny * dy) + nz * dz
         across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
         t_cast[c] = across / along if along != 0.0 else np.inf
+
+
+def triangle_rings(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangles around each vertex, vertices at the same position counted as one (meshes are
+    loaded unwelded): corner (P,) int64 each vertex's position id, start (Q + 1,) int64 and
+    around (3F,) int64 - the triangles at position q are around[start[q]:start[q + 1]].
+
+    vertices (P, 3) float32, faces (F, 3) integer."""
+    if not len(vertices):
+        return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    _, corner = np.unique(vertices + np.float32(0.0), axis=0, return_inverse=True)  # + 0: -0.0 is 0.0
+    corner = corner.reshape(-1).astype(np.int64)
+    ids = corner[np.asarray(faces, dtype=np.int64).reshape(-1)]
+    order = np.argsort(ids, kind="stable")
+    around = (np.arange(len(ids), dtype=np.int64) // 3)[order]
+    start = np.zeros(int(corner.max()) + 2, dtype=np.int64)
+    np.cumsum(np.bincount(ids, minlength=len(start) - 1), out=start[1:])
+    return corner, start, around
+
+
+@numba.njit(cache=True)
+def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
+    """(t, margin) of a ray (float64 origin and direction) and triangle ``f``: t its distance to
+    the triangle's plane (as ``_plane_distances``), margin the signed distance (metres, in the
+    plane) of that plane point from the triangle's nearest edge, negative outside; margin -inf
+    for a degenerate triangle or a ray parallel to it."""
+    a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
+    ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
+    bx, by, bz = np.float64(vertices[b, 0]), np.float64(vertices[b, 1]), np.float64(vertices[b, 2])
+    cx, cy, cz = np.float64(vertices[d, 0]), np.float64(vertices[d, 1]), np.float64(vertices[d, 2])
+    e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
+    e2x, e2y, e2z = vertices[d, 0] - ax, vertices[d, 1] - ay, vertices[d, 2] - az
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    along = (nx * dx + ny * dy) + nz * dz
+    across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
+    if along == 0.0:
+        return np.inf, -np.inf
+    t = across / along
+    norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
+    if norm == 0.0:
+        return t, -np.inf
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    margin = np.inf
+    for edge in range(3):  # (start, end) = (a, b), (b, c), (c, a): inside is the positive side
+        if edge == 0:
+            sx, sy, sz, ex, ey, ez = ax, ay, az, bx, by, bz
+        elif edge == 1:
+            sx, sy, sz, ex, ey, ez = bx, by, bz, cx, cy, cz
+        else:
+            sx, sy, sz, ex, ey, ez = cx, cy, cz, ax, ay, az
+        ux, uy, uz = ex - sx, ey - sy, ez - sz
+        vx, vy, vz = px - sx, py - sy, pz - sz
+        wx, wy, wz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = math.sqrt((ux * ux + uy * uy) + uz * uz)
+        if length == 0.0:
+            return t, -np.inf
+        margin = min(margin, ((wx * nx + wy * ny) + wz * nz) / (norm * length))
+    return t, margin
+
+
+@numba.njit(cache=True)
+def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, corner, start, around, t_cloud):
+    """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle.
+
+    That is the triangle Embree reported (``triangle[c]``, at distance ``t_cast[c]``) when the
+    hit lies more than EDGE_TOLERANCE inside it. Otherwise the candidates are the triangles
+    around its corners (``corner``, ``start``, ``around``: ``triangle_rings``) that the ray meets
+    in front of its origin within EDGE_TOLERANCE of their border, and the canonical one is the
+    lowest-numbered of those met within DEPTH_TOLERANCE of the nearest of them. Nothing in that
+    choice depends on which candidate Embree reported (the candidates lie around the corners of
+    each of them), so it is the same on every CPU."""
+    candidates = np.empty(64, dtype=np.int64)
+    distances = np.empty(64)
+    for c in range(cast.shape[0]):
+        t = t_cast[c]
+        t_cloud[c] = t
+        f = triangle[c]
+        if f >= faces.shape[0] or not np.isfinite(t):
+            continue
+        i = cast[c]
+        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
+        if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)[1] > EDGE_TOLERANCE:
+            continue
+        found, nearest = 0, np.inf
+        for k in range(3):
+            q = corner[faces[f, k]]
+            for j in range(start[q], start[q + 1]):
+                g = around[j]
+                t_g, margin = _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)
+                if margin >= -EDGE_TOLERANCE and t_g > 0.0:
+                    if found == candidates.shape[0]:  # a vertex shared by very many triangles
+                        candidates = np.concatenate((candidates, candidates))
+                        distances = np.concatenate((distances, distances))
+                    candidates[found], distances[found] = g, t_g
+                    found += 1
+                    nearest = min(nearest, t_g)
+        best = faces.shape[0]
+        for j in range(found):
+            if distances[j] <= nearest + DEPTH_TOLERANCE and candidates[j] < best:
+                best, t_cloud[c] = candidates[j], distances[j]
+
+
+@numba.njit(cache=True)
+def _points_at(rays, t, hit, rays_per_view, views):
+    """The points origin + t[i] * direction of the rays with hit[i], in ray order, as
+    ``_end_points`` computes them: points (H, 3) float32 and counts (views,) int64 per view."""
+    total = 0
+    for i in range(hit.shape[0]):
+        total += hit[i]
+    points = np.empty((total, 3), dtype=np.float32)
+    counts = np.zeros(views, dtype=np.int64)
+    h = 0
+    for i in range(hit.shape[0]):
+        if hit[i]:
+            for a in range(3):
+                points[h, a] = np.float64(rays[i, a]) + t[i] * np.float64(rays[i, 3 + a])
+            counts[i // rays_per_view] += 1
+            h += 1
+    return points, counts
 
 
 @numba.njit(cache=True)

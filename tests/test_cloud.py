@@ -67,7 +67,7 @@ def test_fps_of_scanned_clouds_is_the_plain_loops(rng):
     scene = Scene.build(obj, _config("sensor.width=88", "sensor.height=72"), scene_rng(0, obj.mesh_id))
     cloud = ScannedCloud()
     for number, view in enumerate(rng.choice(len(scene.views), 6, replace=False)):
-        cloud.add(scene.scanner.scan(scene.views[int(view)]).hit_points)
+        cloud.add(scene.scanner.scan(scene.views[int(view)]).cloud_points)
         if number == 2:
             cloud.add(np.zeros((0, 3), dtype=np.float32))  # a scan that saw nothing
     points = cloud.points()
@@ -154,7 +154,7 @@ def test_clouds_are_the_scanned_points_on_the_surface(clouds, sources):
                     scanned = []
                     for view in order[:i + 1]:
                         if view not in hits:
-                            hits[view] = scene.scanner.scan(scene.views[int(view)]).hit_points
+                            hits[view] = scene.scanner.scan(scene.views[int(view)]).cloud_points
                         scanned.append(hits[view])
                     scanned = np.concatenate(scanned)
                     assert counts[i] == len(scanned)
@@ -182,7 +182,7 @@ def test_noisy_clouds_lie_on_the_surface_within_the_noise_and_hold_every_hit(tmp
     stream = np.random.default_rng(seed)
     scanned = []
     for i, view in enumerate(order):
-        scanned.append(scene.scanner.scan(scene.views[int(view)], stream).hit_points)
+        scanned.append(scene.scanner.scan(scene.views[int(view)], stream).cloud_points)
         hits = np.concatenate(scanned)
         assert counts[i] == len(hits)
         rows = {row.tobytes() for row in hits}

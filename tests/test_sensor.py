@@ -84,3 +84,87 @@ def test_casting_only_the_rays_near_the_box_changes_no_scan():
         exact = every.scan_many(poses, noiseless=True)
         for hit_points, scan in zip(bounded.iter_hit_points(poses), exact):  # the scene's path
             np.testing.assert_array_equal(hit_points, scan.hit_points)
+
+
+def test_triangle_rings_join_corners_at_the_same_position():
+    """Meshes load unwelded: two triangles that share an edge through copied vertices are still
+    around the same corners."""
+    from nbvdata.sensor import triangle_rings
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 1, 0], [1, 1, -0.0]], dtype=np.float32)
+    corner, start, around = triangle_rings(vertices, np.array([[0, 1, 2], [3, 5, 4]]))
+    assert corner[1] == corner[3] and corner[2] == corner[4] and len(start) == 4 + 1
+    assert sorted(around[start[corner[1]]:start[corner[1] + 1]].tolist()) == [0, 1]
+    assert around[start[corner[0]]:start[corner[0] + 1]].tolist() == [0]
+    assert around[start[corner[5]]:start[corner[5] + 1]].tolist() == [1]
+
+
+def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
+    """Rays aimed at a crease between two triangles, each reported as hitting one and then the
+    other (what two CPUs' Embree kernels may do): the distance to the reported triangle's plane
+    differs between the two, the canonical distance does not."""
+    from nbvdata.sensor import _canonical_distances, _plane_distances, triangle_rings
+
+    vertices = np.array([[0, -0.05, 0], [0, 0.05, 0], [-0.04, 0, -0.03], [0.05, 0.01, -0.01]], dtype=np.float32)
+    faces = np.array([[0, 1, 2], [1, 0, 3]], dtype=np.uint32)  # a crease along the y axis
+    rng = np.random.default_rng(0)
+    targets = np.stack([np.zeros(200), rng.uniform(-0.04, 0.04, 200), np.zeros(200)], axis=1)
+    targets[:, 0] += rng.uniform(-2e-7, 2e-7, 200)  # within Embree's float32 doubt of the edge
+    origins = np.array([0.1, 0.05, 0.4]) + rng.uniform(-0.02, 0.02, (200, 3))
+    directions = (targets - origins) / np.linalg.norm(targets - origins, axis=1, keepdims=True)
+    rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
+    cast = np.arange(200)
+    rings = triangle_rings(vertices, faces)
+    answers = {}
+    for f in (0, 1):
+        triangle = np.full(200, f, dtype=np.uint32)
+        t_cast, t_cloud = np.empty(200), np.empty(200)
+        _plane_distances(rays, cast, triangle, vertices, faces, t_cast)
+        _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, *rings, t_cloud)
+        answers[f] = t_cast, t_cloud
+    assert np.all(np.isfinite(answers[0][1]))
+    assert np.count_nonzero(answers[0][0] != answers[1][0]) > 100  # the reported planes disagree
+    assert np.array_equal(answers[0][1], answers[1][1])  # the canonical triangle does not
+    np.testing.assert_allclose(answers[0][1], answers[0][0], atol=1e-6)
+
+
+def test_scan_clouds_do_not_depend_on_which_neighbour_embree_reports():
+    """A whole scanner whose Embree gives every ray that meets two triangles (within 1e-6 m of
+    their borders and along the ray: Embree's float32 doubt) to the other one: the scans' hit
+    points change, their clouds do not, and the clouds lie within micrometres of the hits."""
+    from nbvdata.config import ViewConfig
+    from nbvdata.sensor import EDGE_TOLERANCE, _triangle_hit
+    from nbvdata.shapes import builtin_object
+    from nbvdata.views import view_sphere
+
+    scanner = MeshScanner(builtin_object("mug").mesh, SensorConfig(width=88, height=72, noise_std=0.001))
+    poses = list(view_sphere(ViewConfig(count=24, radius=0.4)))
+    vertices, faces, (corner, start, around) = scanner._vertices, scanner._faces, scanner._rings
+    embree = scanner._triangles
+    given = []
+
+    def other_neighbour(rays):
+        triangles = embree(rays).copy()
+        for c in np.flatnonzero(triangles < len(faces)):
+            ray, f = rays[c].astype(np.float64), triangles[c]
+            t, margin = _triangle_hit(*ray, vertices, faces, f)
+            if margin > EDGE_TOLERANCE:
+                continue
+            near = {int(g) for q in corner[faces[f]] for g in around[start[q]:start[q + 1]]}
+            for g in sorted(near - {int(f)}):
+                t_g, margin_g = _triangle_hit(*ray, vertices, faces, g)
+                if margin_g >= -1e-6 and abs(t_g - t) <= 1e-6:
+                    triangles[c] = g
+                    given.append(c)
+                    break
+        return triangles
+
+    before = scanner.scan_many(poses, np.random.default_rng(5))
+    scanner._triangles = other_neighbour
+    after = scanner.scan_many(poses, np.random.default_rng(5))
+    assert len(given) > 10
+    assert any(not np.array_equal(a.hit_points, b.hit_points) for a, b in zip(before, after))
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a.cloud, b.cloud)
+        assert a.cloud.shape == a.hit_points.shape
+        np.testing.assert_allclose(a.cloud, a.hit_points, atol=1e-5)
