@@ -427,3 +427,22 @@ def test_a_grid_network_trains_on_a_version_whose_clouds_alone_differ(clouds, tm
     err = capsys.readouterr().err
     assert "1 shard differs from the published" in err and "content differs in gains" in err
     assert not (tmp_path / "cloud").exists() and not (tmp_path / "labels").exists()
+
+
+def test_train_meshes_1_3_0_is_1_2_0_with_other_clouds_only():
+    """The published 1.3.0 (clouds on canonical triangles) against 1.2.0: the same meshes,
+    settings, splits and shards, and in every shard the same content digests but for ``points``."""
+    root = Path(__file__).resolve().parents[1] / "manifests"
+    old, new = (json.loads((root / f"train-meshes-{version}.json").read_text()) for version in ("1.2.0", "1.3.0"))
+    for key in ("meshes", "config", "splits"):
+        assert old[key] == new[key], key
+    old_shards = {shard["path"]: shard for shard in old["shards"]}
+    assert sorted(old_shards) == sorted(shard["path"] for shard in new["shards"])
+    clouds_changed = 0
+    for shard in new["shards"]:
+        before = old_shards[shard["path"]]
+        assert (shard["samples"], shard["runs"]) == (before["samples"], before["runs"])
+        differ = {key for key in shard["content"] if shard["content"][key] != before["content"].get(key)}
+        assert differ <= {"points"}, (shard["path"], differ)
+        clouds_changed += bool(differ)
+    assert clouds_changed > 1000  # nearly every shard has a point near an edge
