@@ -298,6 +298,23 @@ def _fill_rays(camera_rays, width, tangents, positions, rotations, box, every, r
                     (np.float64(rays[ray, 3]), np.float64(rays[ray, 4]), np.float64(rays[ray, 5])), low, high)
 
 
+@numba.njit(cache=True, inline="always")
+def _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
+    """(t, nx, ny, nz): the distance along a ray (float64 origin and direction) to the plane of
+    triangle ``f``, inf for a ray parallel to it, and the plane's normal (edge 1 x edge 2, not
+    unit), in a fixed order of operations."""
+    a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
+    ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
+    e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
+    e2x, e2y, e2z = vertices[d, 0] - ax, vertices[d, 1] - ay, vertices[d, 2] - az
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    along = (nx * dx + ny * dy) + nz * dz
+    across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
+    return (across / along if along != 0.0 else np.inf), nx, ny, nz
+
+
 @numba.njit(cache=True)
 def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
     """t_cast[c] = distance along ray cast[c] to the plane of the triangle it hit, inf for a miss.
@@ -312,18 +329,9 @@ def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
             t_cast[c] = np.inf
             continue
         i = cast[c]
-        a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
-        ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
-        e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
-        e2x, e2y, e2z = vertices[d, 0] - ax, vertices[d, 1] - ay, vertices[d, 2] - az
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
-        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
-        along = (nx * dx + ny * dy) + nz * dz
-        across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
-        t_cast[c] = across / along if along != 0.0 else np.inf
+        t_cast[c] = _plane_hit(np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2]),
+                               np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5]),
+                               vertices, faces, f)[0]
 
 
 def triangle_rings(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -350,23 +358,14 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
     the triangle's plane (as ``_plane_distances``), margin the signed distance (metres, in the
     plane) of that plane point from the triangle's nearest edge, negative outside; margin -inf
     for a degenerate triangle or a ray parallel to it."""
+    t, nx, ny, nz = _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)
+    norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
+    if not np.isfinite(t) or norm == 0.0:
+        return t, -np.inf
     a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
     ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
     bx, by, bz = np.float64(vertices[b, 0]), np.float64(vertices[b, 1]), np.float64(vertices[b, 2])
     cx, cy, cz = np.float64(vertices[d, 0]), np.float64(vertices[d, 1]), np.float64(vertices[d, 2])
-    e1x, e1y, e1z = vertices[b, 0] - ax, vertices[b, 1] - ay, vertices[b, 2] - az
-    e2x, e2y, e2z = vertices[d, 0] - ax, vertices[d, 1] - ay, vertices[d, 2] - az
-    nx = e1y * e2z - e1z * e2y
-    ny = e1z * e2x - e1x * e2z
-    nz = e1x * e2y - e1y * e2x
-    along = (nx * dx + ny * dy) + nz * dz
-    across = (nx * (ax - ox) + ny * (ay - oy)) + nz * (az - oz)
-    if along == 0.0:
-        return np.inf, -np.inf
-    t = across / along
-    norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
-    if norm == 0.0:
-        return t, -np.inf
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
     margin = np.inf
     for edge in range(3):  # (start, end) = (a, b), (b, c), (c, a): inside is the positive side
