@@ -143,9 +143,9 @@ class MeshScanner:
         """The (H, 3) float32 hit points of a noise-free scan from each pose, the same as
         ``scan.hit_points``, without the end points of the rays that return nothing."""
         for positions, rotations in self._batches(poses):
-            rays, cast, t_cast, _ = self._distances(positions, rotations, every=False)
-            points, counts = _hit_points(rays, cast, t_cast, self.config.near, self.config.far, self.rays_per_scan,
-                                         len(positions))
+            rays, cast, _, t_cast = self._distances(positions, rotations, every=False)
+            points, counts = _hit_points(rays, cast, t_cast, t_cast, self.config.near, self.config.far,
+                                         self.rays_per_scan, len(positions))
             yield from np.split(points, np.cumsum(counts)[:-1])
 
     def _batches(self, poses: Sequence[Pose] | ViewSet) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -161,13 +161,13 @@ class MeshScanner:
             yield positions[start:start + per_call], rotations[start:start + per_call]
 
     def _distances(self, positions: np.ndarray, rotations: np.ndarray,
-                   every: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   every: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The rays of the views, and the distance to the first hit of those that may hit.
 
         Returns rays (V * N, 6) float32 (origin, direction; with ``every`` False only the rays
         near the mesh's box are set), cast (C,) int64 ascending indices of the rays cast (those
-        meeting the box), t_cast (C,) float64 their distance to the plane of the triangle hit,
-        inf for none, and t_cloud (C,) float64 the same to the plane of the canonical triangle.
+        meeting the box), triangles (C,) uint32 the triangle each hits (NO_HIT for none) and
+        t_cast (C,) float64 their distance to its plane, inf for none.
         """
         n_views, n_rays = len(positions), self.rays_per_scan
         rays = np.empty((n_views * n_rays, 6), dtype=np.float32)
@@ -176,15 +176,15 @@ class MeshScanner:
                    rays, near_box)
         cast = np.flatnonzero(near_box)
         t_cast = np.empty(len(cast), dtype=np.float64)
-        t_cloud = np.empty(len(cast), dtype=np.float64)
         triangles = self._triangles(rays[cast])
         _plane_distances(rays, cast, triangles, self._vertices, self._faces, t_cast)
-        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._rings, t_cloud)
-        return rays, cast, t_cast, t_cloud
+        return rays, cast, triangles, t_cast
 
     def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
-        rays, cast, t_cast, t_cloud = self._distances(positions, rotations)
+        rays, cast, triangles, t_cast = self._distances(positions, rotations)
+        t_cloud = np.empty(len(cast), dtype=np.float64)  # only scans keep clouds: not iter_hit_points
+        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._rings, t_cloud)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
             noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
@@ -195,9 +195,8 @@ class MeshScanner:
         points = np.empty((n_views, n_rays, 3), dtype=np.float32)
         hit = np.empty((n_views, n_rays), dtype=bool)
         _end_points(rays, t_hit, self.config.near, self.config.far, points.reshape(-1, 3), hit.reshape(-1))
-        t_hit[cast] = t_cloud  # the clouds' points, on the canonical triangles, for the same hits
-        cloud, counts = _points_at(rays, t_hit, hit.reshape(-1), n_rays, n_views)
-        clouds = np.split(cloud, np.cumsum(counts)[:-1])
+        cloud, counts = _hit_points(rays, cast, t_cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
+        clouds = np.split(cloud, np.cumsum(counts)[:-1])  # the same hits, on the canonical triangles
         return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v], clouds[v]) for v in range(n_views)]
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:
@@ -429,28 +428,10 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, corner, 
 
 
 @numba.njit(cache=True)
-def _points_at(rays, t, hit, rays_per_view, views):
-    """The points origin + t[i] * direction of the rays with hit[i], in ray order, as
-    ``_end_points`` computes them: points (H, 3) float32 and counts (views,) int64 per view."""
-    total = 0
-    for i in range(hit.shape[0]):
-        total += hit[i]
-    points = np.empty((total, 3), dtype=np.float32)
-    counts = np.zeros(views, dtype=np.int64)
-    h = 0
-    for i in range(hit.shape[0]):
-        if hit[i]:
-            for a in range(3):
-                points[h, a] = np.float64(rays[i, a]) + t[i] * np.float64(rays[i, 3 + a])
-            counts[i // rays_per_view] += 1
-            h += 1
-    return points, counts
-
-
-@numba.njit(cache=True)
-def _hit_points(rays, cast, t_cast, near, far, rays_per_view, views):
-    """The hit points of the cast rays (near <= t <= far), computed as ``_end_points`` does, in
-    ray order: points (H, 3) float32 and counts (views,) int64 per view."""
+def _hit_points(rays, cast, t_cast, t_at, near, far, rays_per_view, views):
+    """The hit points of the cast rays (near <= t_cast <= far), each at its distance ``t_at``
+    (t_cast itself, or the clouds' canonical distance), computed as ``_end_points`` does, in ray
+    order: points (H, 3) float32 and counts (views,) int64 per view."""
     points = np.empty((cast.shape[0], 3), dtype=np.float32)
     counts = np.zeros(views, dtype=np.int64)
     h = 0
@@ -459,7 +440,7 @@ def _hit_points(rays, cast, t_cast, near, far, rays_per_view, views):
         if t >= near and t <= far:
             i = cast[c]
             for a in range(3):
-                points[h, a] = np.float64(rays[i, a]) + t * np.float64(rays[i, 3 + a])
+                points[h, a] = np.float64(rays[i, a]) + t_at[c] * np.float64(rays[i, 3 + a])
             counts[i // rays_per_view] += 1
             h += 1
     return points[:h], counts
