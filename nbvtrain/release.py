@@ -123,12 +123,12 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
                               for key, value in state["state_dict"].items()}
         slim["released_from"] = str(checkpoint)
         path = out / f"{state['model']}.pt"
-        history = _run_history(run, state)
-        lineage = _lineage(run, state, history)  # before writing: the run may have started from the file it replaces
+        data, history = json.loads((run / "data.json").read_text()), _run_history(run, state)
+        lineage = _lineage(data, state, history)  # before writing: the run may have started from the file it replaces
         save_checkpoint(path, slim)
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
-        sections[task] = _card_section(task, run, checkpoint, state, path, history, lineage)
+        sections[task] = _card_section(task, run, checkpoint, state, path, data, history, lineage)
     answers = {task: answers[task] for task in TASKS if task in answers}  # the card's order, whatever came last
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
@@ -175,18 +175,16 @@ def _run_history(run: Path, state: dict) -> list[dict]:
     return load_checkpoint(last)["history"] if last.is_file() else state["history"]
 
 
-def _lineage(run: Path, state: dict, history: list[dict]) -> list[str]:
-    """The card's line on the checkpoints ``run`` started from, for its checkpoint ``state``
-    (``history``: the whole run's)."""
-    data = json.loads((run / "data.json").read_text())
+def _lineage(data: dict, state: dict, history: list[dict]) -> list[str]:
+    """The card's line on the checkpoints a run started from (``data``: its data.json), for its
+    checkpoint ``state`` (``history``: the whole run's)."""
     epoch = state["history"][-1]["epoch"]
     return _lineage_lines(data, epoch, sum(row["seconds"] for row in history[:epoch]))
 
 
-def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path, history: list[dict],
-                  lineage: list[str]) -> str:
-    """``history``: every epoch of the run; ``lineage``: ``_lineage``'s lines."""
-    data = json.loads((run / "data.json").read_text())
+def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Path, data: dict,
+                  history: list[dict], lineage: list[str]) -> str:
+    """``data``: the run's data.json; ``history``: every epoch of the run; ``lineage``: ``_lineage``'s lines."""
     manifest = data.get("manifest")
     best = state["history"][-1]  # a checkpoint is saved at its epoch
     chosen = ("best epoch (lowest validation loss)" if checkpoint == run / "best.pt"
