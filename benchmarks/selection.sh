@@ -8,7 +8,8 @@
 #
 #   benchmarks/selection.sh data                  # generate (resumable: run it again after a kill)
 #   benchmarks/selection.sh publish               # manifests/train-meshes-1.2.0.json, then verify it
-#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-3, regression or
+#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-fc3-wide (twice as
+#                                                 # wide, scores-dagger's states added), scores-3, regression or
 #                                                 # regression-near-best (nbvnet-4-3 on the near-best loss);
 #                                                 # run it again until it says the validation stopped improving
 #   benchmarks/selection.sh dagger [N]            # DAgger round N (1): the policy's runs on the training
@@ -17,6 +18,9 @@
 #                                                 # round's policy, rounds 1..N added. The policy of round N is the
 #                                                 # best snapshot on the validation objects of the run before it
 #                                                 # (regression-near-best, regression-dagger, regression-dagger2...)
+#   benchmarks/selection.sh scores-dagger         # the released score network's own runs on the training meshes
+#                                                 # (6 each, seed 11), every state labelled exactly: the data
+#                                                 # scores-fc3-wide adds
 #   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
 #   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
 #   benchmarks/selection.sh table                 # every validation result so far, as one table
@@ -111,6 +115,17 @@ stage_dagger() {  # N: 4 runs per training mesh from other start views (seed N),
         --runs-per-mesh 4 --seed "$round" --workers "$WORKERS" --out "$data" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
 }
 
+# The score network's round: the released nbvscore-fc3 (or DAGGER_POLICY) drives 6 runs from other start
+# views (seed 11) on each training mesh, every state labelled exactly; its moves are candidate views, so the
+# view state stays known (a score network can train on it). No clouds: the grid networks read none.
+SCORES_DAGGER=$DATA-scores-dagger1
+stage_scores_dagger() {
+    local policy=${DAGGER_POLICY:-nbvtrain/released/nbvscore-fc3.pt}
+    log "the score network's round: $policy on the training part of $NAME $VERSION -> $SCORES_DAGGER"
+    nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$policy" \
+        --runs-per-mesh 6 --seed 11 --workers "$WORKERS" --out "$SCORES_DAGGER" "${SCENE[@]}" --no-progress
+}
+
 dagger_flags() {  # N -> --add-train of rounds 1..N and --init the policy of round N (its sha256 checked)
     local round=$1 policy data i flags=""
     policy=$(dagger_policy "$round")
@@ -130,6 +145,14 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
     case $1 in
         scores-fc3) echo "--model nbvscore-fc3 --score-loss regression --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
         scores-3) echo "--model nbvscore-3 --score-loss regression --augment --lr 1e-3 --dropout-from fc1 --dropout 0.3" ;;
+        # issue 27's "larger nbvscore-fc3 with more data": twice as wide, the score network's own round
+        # added (scores-dagger; a regression round's states have no view state a score network can read)
+        scores-fc3-wide)
+            if [ ! -f "$SCORES_DAGGER/policy.yaml" ]; then
+                echo "selection.sh: scores-fc3-wide adds $SCORES_DAGGER: run benchmarks/selection.sh scores-dagger first" >&2
+                exit 2
+            fi
+            echo "$(fit_flags scores-fc3 | sed 's/nbvscore-fc3/nbvscore-fc3-wide/') --add-train $SCORES_DAGGER" ;;
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
         # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
         regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
@@ -138,7 +161,7 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
             round=$(dagger_round "$1")
             extra=$(dagger_flags "$round") || exit 2
             echo "$(fit_flags regression-near-best) $extra" ;;
-        *) echo "unknown network $1: scores-fc3, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
+        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
            exit 2 ;;
     esac
 }
@@ -238,8 +261,9 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
     dagger) stage_dagger "${2:-1}" ;;
+    scores-dagger) stage_scores_dagger ;;
     select) stage_select ;;
     test) stage_test ;;
     table) table "$VAL"/* ;;

@@ -35,7 +35,8 @@ def test_the_paper_sizes():
             assert conv.stride == (1, 1, 1) and conv.padding == (1, 1, 1) and conv.kernel_size == (3, 3, 3)
 
 
-@pytest.mark.parametrize("name", ["nbvnet-3-5", "nbvnet-4-5", "nbvscore-fc3", "nbvscore-3", "nbvscore-pc"])
+@pytest.mark.parametrize("name", ["nbvnet-3-5", "nbvnet-4-5", "nbvscore-fc3", "nbvscore-fc3-wide", "nbvscore-3",
+                                  "nbvscore-pc"])
 def test_dropout_from_layer_n_to_the_end(name):
     names = layer_names(name)
     views = np.eye(3) if MODELS[name].task == "scores" else None

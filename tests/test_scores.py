@@ -27,6 +27,14 @@ def test_the_registry_builds_the_score_family():  # the point network's: tests/t
         assert TrainConfig(model=name, dropout_from="conv3").model == name
 
 
+def test_the_wide_score_network_is_fc3_twice_as_wide():
+    narrow, wide = MODELS["nbvscore-fc3"], MODELS["nbvscore-fc3-wide"]
+    assert wide.convs == tuple(2 * c for c in narrow.convs) and wide.fcs == tuple(2 * f for f in narrow.fcs)
+    units = sphere_positions(500, 1.0, "hemisphere")
+    assert parameter_count(build_model("nbvscore-fc3", views=units)) == 2_942_916  # docs/score-networks.md
+    assert parameter_count(build_model("nbvscore-fc3-wide", views=units)) == 10_742_164
+
+
 def test_the_view_state_changes_the_scores():
     torch.manual_seed(0)
     model = build_model("nbvscore-3", "none", views=sphere_positions(10, 1.0, "hemisphere")).eval()
