@@ -115,12 +115,16 @@ stage_dagger() {  # N: 4 runs per training mesh from other start views (seed N),
         --runs-per-mesh 4 --seed "$round" --workers "$WORKERS" --out "$data" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
 }
 
-# The score network's round: the released nbvscore-fc3 (or DAGGER_POLICY) drives 6 runs from other start
-# views (seed 11) on each training mesh, every state labelled exactly; its moves are candidate views, so the
-# view state stays known (a score network can train on it). No clouds: the grid networks read none.
+# The score network's round: the released nbvscore-fc3 (scores-fc3's best snapshot, epoch 14; with SMOKE the
+# smoke run's best, the released one being for the default scene; or DAGGER_POLICY) drives 6 runs from other
+# start views (seed 11) on each training mesh, every state labelled exactly; its moves are candidate views,
+# so the view state stays known (a score network can train on it). No clouds: the grid networks read none.
 SCORES_DAGGER=$DATA-scores-dagger1
 stage_scores_dagger() {
-    local policy=${DAGGER_POLICY:-nbvtrain/released/nbvscore-fc3.pt}
+    local policy
+    if [ -n "${DAGGER_POLICY:-}" ]; then policy=$DAGGER_POLICY
+    elif [ "$SMOKE" = 1 ]; then policy=$(best scores-fc3)
+    else policy=nbvtrain/released/nbvscore-fc3.pt; fi
     log "the score network's round: $policy on the training part of $NAME $VERSION -> $SCORES_DAGGER"
     nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$policy" \
         --runs-per-mesh 6 --seed 11 --workers "$WORKERS" --out "$SCORES_DAGGER" "${SCENE[@]}" --no-progress
@@ -274,6 +278,8 @@ case ${1:-} in
         stage_publish
         for net in scores-fc3 scores-3 regression; do stage_fit $net; done
         stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
+        stage_scores_dagger                           # rolled by scores-fc3's best snapshot
+        stage_fit scores-fc3-wide
         stage_fit regression-near-best
         stage_dagger 1
         stage_fit regression-dagger
