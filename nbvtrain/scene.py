@@ -6,7 +6,9 @@ never saw. Checkpoints of imported data (the authors' shards record no settings)
 are not checked.
 
 Training data is one scene: shards whose recorded settings differ anywhere but ``episode`` (how
-many runs, how they move: rounds of one scene may differ there) are refused together
+many runs, how they move: rounds of one scene may differ there) and ``state`` (what a shard keeps
+besides the grids: clouds or none; a cloud network refuses shards without them on its own) are
+refused together
 (``scene_difference``), unless mixing them is asked for (``nbvtrain fit --mixed-scenes``). A
 network trained on mixed scenes records ``mixed_scene_record``: ``mixed`` true and, for each
 key, the list of values its shards had; ``check_scene`` then accepts a run whose value is any
@@ -18,7 +20,7 @@ from __future__ import annotations
 from nbvdata.config import ConfigError, SimConfig, from_dict, to_dict
 
 SCENE_KEYS = ("grid_size", "grid_extent", "views_count", "views_radius", "views_layout")
-NOT_SCENE = ("episode",)  # sections of a shard's settings that shards of one scene may differ in
+NOT_SCENE = ("episode", "state")  # sections of a shard's settings that shards of one scene may differ in
 
 
 class SceneMismatch(ConfigError):

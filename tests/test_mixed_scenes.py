@@ -64,10 +64,13 @@ def test_mixed_scenes_train_when_asked_and_the_checkpoint_says_so(scenes, tmp_pa
 
 
 def test_shards_of_one_scene_mix_whatever_their_runs(scenes, tmp_path):
-    """Rounds of one scene differ in ``episode`` only (more runs, exploration, a policy): one scene."""
+    """Rounds of one scene differ in ``episode`` only (more runs, exploration, a policy), and in
+    whether they keep clouds (``state``; a round rolled without them adds to a version with them):
+    one scene."""
     smoke = to_dict(load_config(SimConfig, SMOKE))
     rounds = to_dict(load_config(SimConfig, SMOKE, ["episode.runs_per_mesh=7", "episode.explore=0.25"]))
     assert scene_difference(smoke, rounds) is None
+    assert scene_difference(smoke, to_dict(load_config(SimConfig, SMOKE, ["state.points=1024"]))) is None
     older = {section: dict(values) for section, values in smoke.items()}
     del older["coverage"]["metric"]  # a setting added later reads as its default
     assert scene_difference(smoke, older) is None
