@@ -13,14 +13,17 @@ and each hit's distance (from the ray and the plane of the triangle Embree repor
 computed here, in float64 with a fixed order of operations and no fused multiply-add
 (numba without fastmath), and only the triangle ids come from Embree.
 
-Which triangle a ray meets at an edge is Embree's float32 decision, and another instruction set
-may give it to the neighbour, whose plane puts the hit a few ulps away. The grids and coverage
-do not see that (a point moves into another voxel or cell only within those ulps of a face);
-the partial clouds keep each point's exact position, so they take it from the *canonical*
-triangle: a hit within ``EDGE_TOLERANCE`` of its triangle's border is moved to the plane of the
-lowest-numbered of the triangles around that triangle's corners that the ray meets nearest
-(within that tolerance of their border, within ``DEPTH_TOLERANCE`` of the nearest) - the same
-triangle whichever of them Embree reported (``Scan.cloud``; ``_canonical_distances``).
+Which triangle a ray meets first is Embree's float32 decision wherever two triangles are at the
+same depth within its doubt: at a shared edge, on duplicated or overlapping faces, where two
+parts of an object cross. Another instruction set may give the ray to the other one, whose plane
+puts the hit a few ulps away. The grids and coverage do not see that (a point moves into another
+voxel or cell only within those ulps of a face); the partial clouds keep each point's exact
+position, so they take it from the *canonical* triangle: among the triangles near the hit
+(``TriangleCells``) that the ray meets within ``EDGE_TOLERANCE`` of their border and within
+``DEPTH_WINDOW`` of the reported hit, the lowest-numbered of those within ``DEPTH_TOLERANCE`` of
+the nearest - the same triangle whichever of them Embree reported (``Scan.cloud``;
+``_canonical_distances``). Not covered: a ray that grazes the border of the surface itself (an
+open edge, a silhouette), which one CPU's Embree counts as a hit and another's as a miss.
 
 Only the rays that meet the mesh's bounding box (slightly enlarged) go to Embree: the others
 cannot hit it. Embree traces every ray on its own, so the subset changes no ray's answer (tested
@@ -31,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterator, Sequence
+from typing import Iterator, NamedTuple, Sequence
 
 import numba
 import numpy as np
@@ -47,6 +50,12 @@ NO_HIT = np.uint32(2**32 - 1)  # Embree's primitive id of a ray that hits nothin
 EDGE_TOLERANCE = 2.0**-18  # 3.8 um
 # Candidates met this much farther along the ray than the nearest one are not the same hit.
 DEPTH_TOLERANCE = 2.0**-20  # 0.95 um
+# Triangles met this much nearer or farther than the reported hit are not candidates: wider than
+# DEPTH_TOLERANCE plus Embree's doubt, so every candidate within DEPTH_TOLERANCE of the nearest is
+# found from any of them.
+DEPTH_WINDOW = 2.0**-17  # 7.6 um
+# How far from a hit point a candidate can lie (along the ray, then in its plane), with room to spare.
+REACH = 2.0 * (DEPTH_WINDOW + EDGE_TOLERANCE)
 _EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets (MeshScanner(bounded=False))
 # Rays per open3d call; bounds the rays buffer to about 64 views x 25k rays x 24 B = 40 MB.
 _RAYS_PER_CALL = 64 * 176 * 144
@@ -109,7 +118,7 @@ class MeshScanner:
         self._box = _enlarged_box(self._vertices) if bounded and len(self._vertices) else _EVERYWHERE
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
-        self._rings = triangle_rings(self._vertices, self._faces)
+        self._cells = TriangleCells.build(self._vertices, self._faces)
         self._camera_rays = camera_rays(config)
         self._tangents = np.array([np.tan(config.hfov / 2), np.tan(config.vfov / 2)])
 
@@ -184,7 +193,7 @@ class MeshScanner:
         n_views, n_rays = len(positions), self.rays_per_scan
         rays, cast, triangles, t_cast = self._distances(positions, rotations)
         t_cloud = np.empty(len(cast), dtype=np.float64)  # only scans keep clouds: not iter_hit_points
-        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._rings, t_cloud)
+        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._cells, t_cloud)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
             noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
@@ -333,22 +342,62 @@ def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
                                vertices, faces, f)[0]
 
 
-def triangle_rings(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The triangles around each vertex, vertices at the same position counted as one (meshes are
-    loaded unwelded): corner (P,) int64 each vertex's position id, start (Q + 1,) int64 and
-    around (3F,) int64 - the triangles at position q are around[start[q]:start[q + 1]].
+class TriangleCells(NamedTuple):
+    """A uniform grid over the mesh's box: the triangles whose box, grown by ``REACH``, meets each
+    cell - every triangle a ray could meet near a hit point is in the hit point's cell.
 
-    vertices (P, 3) float32, faces (F, 3) integer."""
-    if not len(vertices):
-        return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    _, corner = np.unique(vertices + np.float32(0.0), axis=0, return_inverse=True)  # + 0: -0.0 is 0.0
-    corner = corner.reshape(-1).astype(np.int64)
-    ids = corner[np.asarray(faces, dtype=np.int64).reshape(-1)]
-    order = np.argsort(ids, kind="stable")
-    around = (np.arange(len(ids), dtype=np.int64) // 3)[order]
-    start = np.zeros(int(corner.max()) + 2, dtype=np.int64)
-    np.cumsum(np.bincount(ids, minlength=len(start) - 1), out=start[1:])
-    return corner, start, around
+    low (3,) float64 the grid's corner, size float64 a cell's edge, shape (3,) int64 cells per
+    axis, start (C + 1,) int64 and members (M,) int64: cell c's triangles are
+    members[start[c]:start[c + 1]], ascending, with C = prod(shape) cells (x slowest)."""
+
+    low: np.ndarray
+    size: float
+    shape: np.ndarray
+    start: np.ndarray
+    members: np.ndarray
+
+    @classmethod
+    def build(cls, vertices: np.ndarray, faces: np.ndarray, per_cell: float = 4.0) -> "TriangleCells":
+        """Cells about ``per_cell`` triangles of a surface each (at most 64 a side).
+
+        vertices (P, 3) float32, faces (F, 3) integer."""
+        if not len(faces):
+            return cls(np.zeros(3), 1.0, np.ones(3, dtype=np.int64), np.zeros(2, dtype=np.int64),
+                       np.zeros(0, dtype=np.int64))
+        corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]  # (F, 3, 3)
+        lows, highs = corners.min(axis=1) - REACH, corners.max(axis=1) + REACH
+        low, span = lows.min(axis=0), highs.max(axis=0) - lows.min(axis=0)
+        side = math.ceil(math.sqrt(len(faces) / per_cell))  # a surface: the occupied cells grow as side^2
+        size = max(float(span.max()) / min(max(side, 1), 64), REACH)
+        shape = np.maximum(np.ceil(span / size).astype(np.int64), 1)
+        first = np.clip(np.floor((lows - low) / size).astype(np.int64), 0, shape - 1)
+        last = np.clip(np.floor((highs - low) / size).astype(np.int64), 0, shape - 1)
+        start, members = _fill_cells(first, last, shape)
+        return cls(low, size, shape, start, members)
+
+
+@numba.njit(cache=True)
+def _fill_cells(first, last, shape):
+    """CSR lists of the triangles whose cell ranges first[f]..last[f] (inclusive, (F, 3)) cover
+    each cell of a ``shape`` grid, each list ascending."""
+    cells = shape[0] * shape[1] * shape[2]
+    counts = np.zeros(cells + 1, dtype=np.int64)
+    for f in range(first.shape[0]):
+        for i in range(first[f, 0], last[f, 0] + 1):
+            for j in range(first[f, 1], last[f, 1] + 1):
+                for k in range(first[f, 2], last[f, 2] + 1):
+                    counts[(i * shape[1] + j) * shape[2] + k + 1] += 1
+    start = np.cumsum(counts)
+    members = np.empty(start[-1], dtype=np.int64)
+    fill = start[:-1].copy()
+    for f in range(first.shape[0]):  # in triangle order: every list comes out ascending
+        for i in range(first[f, 0], last[f, 0] + 1):
+            for j in range(first[f, 1], last[f, 1] + 1):
+                for k in range(first[f, 2], last[f, 2] + 1):
+                    c = (i * shape[1] + j) * shape[2] + k
+                    members[fill[c]] = f
+                    fill[c] += 1
+    return start, members
 
 
 @numba.njit(cache=True)
@@ -385,46 +434,47 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
 
 
 @numba.njit(cache=True)
-def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, corner, start, around, t_cloud):
+def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, size, shape, start, members, t_cloud):
     """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle.
 
-    That is the triangle Embree reported (``triangle[c]``, at distance ``t_cast[c]``) when the
-    hit lies more than EDGE_TOLERANCE inside it. Otherwise the candidates are the triangles
-    around its corners (``corner``, ``start``, ``around``: ``triangle_rings``) that the ray meets
-    in front of its origin within EDGE_TOLERANCE of their border, and the canonical one is the
-    lowest-numbered of those met within DEPTH_TOLERANCE of the nearest of them. Nothing in that
-    choice depends on which candidate Embree reported (the candidates lie around the corners of
-    each of them), so it is the same on every CPU."""
-    candidates = np.empty(64, dtype=np.int64)
-    distances = np.empty(64)
+    The candidates are the triangles of the hit point's cell (``TriangleCells``: ``low`` ..
+    ``members``) that the ray meets within EDGE_TOLERANCE of their border and within DEPTH_WINDOW
+    of the reported hit (``triangle[c]`` at ``t_cast[c]``); the canonical one is the
+    lowest-numbered of those met within DEPTH_TOLERANCE of the nearest of them. Every triangle
+    within Embree's doubt of the first hit is a candidate whichever of them Embree reported, so
+    the choice is the same on every CPU. No candidate (a degenerate triangle): the reported
+    distance."""
+    candidates = np.empty(16, dtype=np.int64)
+    distances = np.empty(16)
     for c in range(cast.shape[0]):
         t = t_cast[c]
         t_cloud[c] = t
-        f = triangle[c]
-        if f >= faces.shape[0] or not np.isfinite(t):
+        if triangle[c] >= faces.shape[0] or not np.isfinite(t):
             continue
         i = cast[c]
         ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
         dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
-        if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)[1] > EDGE_TOLERANCE:
-            continue
+        cx = min(max(int(math.floor((ox + t * dx - low[0]) / size)), 0), shape[0] - 1)
+        cy = min(max(int(math.floor((oy + t * dy - low[1]) / size)), 0), shape[1] - 1)
+        cz = min(max(int(math.floor((oz + t * dz - low[2]) / size)), 0), shape[2] - 1)
+        cell = (cx * shape[1] + cy) * shape[2] + cz
         found, nearest = 0, np.inf
-        for k in range(3):
-            q = corner[faces[f, k]]
-            for j in range(start[q], start[q + 1]):
-                g = around[j]
-                t_g, margin = _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)
-                if margin >= -EDGE_TOLERANCE and t_g > 0.0:
-                    if found == candidates.shape[0]:  # a vertex shared by very many triangles
-                        candidates = np.concatenate((candidates, candidates))
-                        distances = np.concatenate((distances, distances))
-                    candidates[found], distances[found] = g, t_g
-                    found += 1
-                    nearest = min(nearest, t_g)
-        best = faces.shape[0]
-        for j in range(found):
-            if distances[j] <= nearest + DEPTH_TOLERANCE and candidates[j] < best:
-                best, t_cloud[c] = candidates[j], distances[j]
+        for j in range(start[cell], start[cell + 1]):
+            g = members[j]
+            t_g = _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0]
+            if not abs(t_g - t) <= DEPTH_WINDOW or not t_g > 0.0:  # most of the cell: another depth
+                continue
+            if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[1] >= -EDGE_TOLERANCE:
+                if found == candidates.shape[0]:  # very many triangles through one point
+                    candidates = np.concatenate((candidates, candidates))
+                    distances = np.concatenate((distances, distances))
+                candidates[found], distances[found] = g, t_g
+                found += 1
+                nearest = min(nearest, t_g)
+        for j in range(found):  # ascending: the first one within DEPTH_TOLERANCE is the lowest-numbered
+            if distances[j] <= nearest + DEPTH_TOLERANCE:
+                t_cloud[c] = distances[j]
+                break
 
 
 @numba.njit(cache=True)
