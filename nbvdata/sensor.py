@@ -358,7 +358,9 @@ class TriangleCells(NamedTuple):
 
     @classmethod
     def build(cls, vertices: np.ndarray, faces: np.ndarray, per_cell: float = 4.0) -> "TriangleCells":
-        """Cells about ``per_cell`` triangles of a surface each (at most 64 a side).
+        """Cells about ``per_cell`` triangles of a surface each (at most 64 a side), coarser where
+        long triangles would fill more than ``16 F`` (at least 2^20) list entries. The cells only
+        narrow the search: the canonical distances do not depend on them.
 
         vertices (P, 3) float32, faces (F, 3) integer."""
         if not len(faces):
@@ -367,11 +369,16 @@ class TriangleCells(NamedTuple):
         corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]  # (F, 3, 3)
         lows, highs = corners.min(axis=1) - REACH, corners.max(axis=1) + REACH
         low, span = lows.min(axis=0), highs.max(axis=0) - lows.min(axis=0)
-        side = math.ceil(math.sqrt(len(faces) / per_cell))  # a surface: the occupied cells grow as side^2
-        size = max(float(span.max()) / min(max(side, 1), 64), REACH)
-        shape = np.maximum(np.ceil(span / size).astype(np.int64), 1)
-        first = np.clip(np.floor((lows - low) / size).astype(np.int64), 0, shape - 1)
-        last = np.clip(np.floor((highs - low) / size).astype(np.int64), 0, shape - 1)
+        side = min(max(math.ceil(math.sqrt(len(faces) / per_cell)), 1), 64)  # a surface: cells in use ~ side^2
+        while True:
+            size = max(float(span.max()) / side, REACH)
+            shape = np.maximum(np.ceil(span / size).astype(np.int64), 1)
+            first = np.clip(np.floor((lows - low) / size).astype(np.int64), 0, shape - 1)
+            last = np.clip(np.floor((highs - low) / size).astype(np.int64), 0, shape - 1)
+            entries = int(np.prod(last - first + 1, axis=1).sum())
+            if side == 1 or entries <= max(16 * len(faces), 2**20):
+                break
+            side //= 2
         start, members = _fill_cells(first, last, shape)
         return cls(low, size, shape, start, members)
 

@@ -110,6 +110,33 @@ def test_a_point_on_a_triangle_finds_it_in_its_cell():
         assert np.all(np.diff(members) > 0)
 
 
+def test_the_cells_narrow_the_search_without_changing_the_answer():
+    """Canonical distances with coarse and fine cells are the same; long slivers across the whole
+    object make the grid coarser instead of filling every cell they cross."""
+    from nbvdata.sensor import TriangleCells, _canonical_distances
+    from nbvdata.shapes import builtin_object
+
+    mesh = builtin_object("mug").mesh
+    scanner = MeshScanner(mesh, SensorConfig(width=88, height=72))
+    pose = Pose.look_at((0.3, 0.2, 0.2))
+    rays, cast, triangles, t_cast = scanner._distances(pose.position[None], pose.rotation[None])
+    answers = []
+    for per_cell in (0.5, 4.0, 1e9):  # 1e9: one cell holds every triangle
+        cells = TriangleCells.build(scanner._vertices, scanner._faces, per_cell)
+        t_cloud = np.empty(len(cast))
+        _canonical_distances(rays, cast, triangles, t_cast, scanner._vertices, scanner._faces, *cells, t_cloud)
+        answers.append(t_cloud)
+    assert np.isfinite(answers[0]).sum() > 500
+    np.testing.assert_array_equal(answers[0], answers[1])
+    np.testing.assert_array_equal(answers[0], answers[2])
+    rng = np.random.default_rng(1)
+    ends = rng.uniform(-0.1, 0.1, (3000, 2, 3)).astype(np.float32)  # 3,000 slivers from corner to corner
+    vertices = np.concatenate([ends.reshape(-1, 3), ends[:, 0] + np.float32(1e-4)])
+    faces = np.stack([np.arange(3000) * 2, np.arange(3000) * 2 + 1, 6000 + np.arange(3000)], axis=1)
+    cells = TriangleCells.build(vertices, faces)
+    assert len(cells.members) <= max(16 * 3000, 2**20)
+
+
 def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
     """Rays aimed at a crease between two triangles, each reported as hitting one and then the
     other (what two CPUs' Embree kernels may do): the distance to the reported triangle's plane
