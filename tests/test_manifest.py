@@ -447,4 +447,4 @@ def test_train_meshes_versions_differ_in_their_clouds_only(older, newer):
         differ = {key for key in shard["content"] if shard["content"][key] != before["content"].get(key)}
         assert differ <= {"points"}, (shard["path"], differ)
         clouds_changed += bool(differ)
-    assert clouds_changed > 100  # many shards have a point near an edge, a duplicated face or crossing parts
+    assert clouds_changed > 1000  # nearly every shard has a point near an edge, a duplicated face or crossing parts
