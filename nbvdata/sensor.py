@@ -451,7 +451,6 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, siz
     within Embree's doubt of the first hit is a candidate whichever of them Embree reported, so
     the choice is the same on every CPU. No candidate (a degenerate triangle): the reported
     distance."""
-    candidates = np.empty(16, dtype=np.int64)
     distances = np.empty(16)
     for c in range(cast.shape[0]):
         t = t_cast[c]
@@ -472,10 +471,9 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, siz
             if not abs(t_g - t) <= DEPTH_WINDOW or not t_g > 0.0:  # most of the cell: another depth
                 continue
             if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[1] >= -EDGE_TOLERANCE:
-                if found == candidates.shape[0]:  # very many triangles through one point
-                    candidates = np.concatenate((candidates, candidates))
+                if found == distances.shape[0]:  # very many triangles through one point
                     distances = np.concatenate((distances, distances))
-                candidates[found], distances[found] = g, t_g
+                distances[found] = t_g  # in triangle order
                 found += 1
                 nearest = min(nearest, t_g)
         for j in range(found):  # ascending: the first one within DEPTH_TOLERANCE is the lowest-numbered
