@@ -44,7 +44,7 @@ def nudge(rays: np.ndarray, ulps: int, rng: np.random.Generator) -> np.ndarray:
 def census(path: Path, config: SimConfig, ulps: int, seed: int) -> dict[str, int]:
     """Counts of rays cast, reassigned, and changed in each way (see the module's docstring)."""
     scanner = MeshScanner(load_mesh(path, config.mesh).mesh, config.sensor, threads=1)
-    vertices, faces, cells = scanner._vertices, scanner._faces, scanner._cells
+    vertices, faces, cells = scanner._vertices, scanner._faces, scanner.cells
     near, far = config.sensor.near, config.sensor.far
     rng = np.random.default_rng(seed)
     counts = dict.fromkeys(("rays", "reassigned", "reported", "canonical", "hit/miss"), 0)

@@ -7,7 +7,10 @@ grid.py, loaded from git), alternating scan by scan; both must give the same poi
 same voxel updates. The first ``--octomap-scans`` scans then go through OctoMap's
 insertPointCloud (pyoctomap) in a second pass of the same process. Times are medians.
 
-    python benchmarks/scan_integrate.py [--scans 40] [--threads 2] [--baseline 62dc09d]
+    python benchmarks/scan_integrate.py [--scans 40] [--threads 2] [--baseline 62dc09d] [--no-clouds]
+
+``--no-clouds`` casts this checkout's scans with ``cloud=False`` (what grid integration, coverage
+and runs without clouds use); the baseline's scans are cast as its code casts them by default.
 
 Target (issue 16): cast + integrate <= 5 ms median on a 2-core machine, voxel-identical to OctoMap.
 """
@@ -74,6 +77,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=numba.config.NUMBA_NUM_THREADS, help="numba threads")
     parser.add_argument("--baseline", default=BASELINE, help="git revision to compare against")
     parser.add_argument("--octomap-scans", type=int, default=5, help="scans per mesh through OctoMap (slow)")
+    parser.add_argument("--no-clouds", dest="clouds", action="store_false",
+                        help="this checkout's scans skip the clouds' canonical triangles (Scan.cloud None)")
     args = parser.parse_args()
     numba.set_num_threads(args.threads)
     try:
@@ -107,7 +112,10 @@ def main() -> None:
                 cast, updates = {}, {}
                 for key in ("before", "after"):
                     start = time.perf_counter()
-                    cast[key] = scanners[key].scan(views[int(view)])
+                    if key == "after" and not args.clouds:
+                        cast[key] = scanners[key].scan(views[int(view)], cloud=False)
+                    else:
+                        cast[key] = scanners[key].scan(views[int(view)])
                     middle = time.perf_counter()
                     updates[key] = grids[key].scan_update(cast[key], config.sensor.far)
                     grids[key].apply(updates[key])

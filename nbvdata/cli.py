@@ -99,7 +99,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         run = recording.run(["demo"], scene) if recording is not None else None
         for step, view in enumerate(views, start=1):
             start = time.perf_counter()
-            scan = scene.scanner.scan(scene.views[int(view)], rng)
+            scan = scene.scanner.scan(scene.views[int(view)], rng, cloud=False)
             scene.integrate(grid, scan)
             elapsed = time.perf_counter() - start
             covered |= scene.coverage.covered_by(scan.hit_points)
@@ -346,7 +346,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         rng = np.random.default_rng(args.seed)
         scanned = _parse_indices(args.views, len(views))
         for index in scanned:
-            grid.integrate(scanner.scan(views[index], rng), config.sensor.far)
+            grid.integrate(scanner.scan(views[index], rng, cloud=False), config.sensor.far)
         probabilities = grid.probabilities()
         title = f"{obj.source}, views {args.views}"
     highlight = None

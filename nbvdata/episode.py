@@ -64,7 +64,7 @@ class ViewCache:
 
     def update(self, view: int) -> ScanUpdate:
         if view not in self._updates:
-            scan = self.scene.scanner.scan(self.scene.views[view])
+            scan = self.scene.scanner.scan(self.scene.views[view], cloud=self._hits is not None)
             self._updates[view] = self._grid.scan_update(scan, self.scene.config.sensor.far)
             if self._hits is not None:
                 self._hits[view] = scan.cloud_points
@@ -114,7 +114,7 @@ class Reconstruction:
 
         From a candidate view's pose with a noise-free sensor this gives the same grid and
         covered points as ``scan(view)``."""
-        scan = self.scene.scanner.scan(pose, self.rng)
+        scan = self.scene.scanner.scan(pose, self.rng, cloud=self.cloud is not None)
         self.scene.integrate(self.grid, scan)
         seen = pack_bits(self.scene.coverage.covered_by(scan.hit_points))
         self.covered |= seen

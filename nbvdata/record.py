@@ -164,7 +164,7 @@ class RunLog:
         """
         stream, root = self.stream, self.root
         stream.set_time(TIMELINE, sequence=scan)
-        hits = self.scene.scanner.scan(sensor).hit_points  # noise-free: draws nothing
+        hits = self.scene.scanner.scan(sensor, cloud=False).hit_points  # noise-free: draws nothing
         stream.log(f"{root}/scans/{scan:02d}", rr.Points3D(hits, colors=SCAN_COLOURS[(scan - 1) % len(SCAN_COLOURS)],
                                                           radii=0.4 * self.grid.resolution / 2))
         self._log_grid(np.asarray(probabilities))

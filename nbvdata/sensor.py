@@ -70,8 +70,8 @@ class Scan:
              no return a point at twice the far range along the ray
     hit : (N,) bool, True where the ray returned a measurement
     cloud : (H, 3) float32 the measured points as the partial clouds keep them, each on its
-            ray's canonical triangle (module docstring); None: ``hit_points`` (a scan not cast
-            here, e.g. a real sensor's)
+            ray's canonical triangle (module docstring); None: ``hit_points`` (a scan cast
+            with ``cloud=False``, or not cast here, e.g. a real sensor's)
     """
 
     origin: np.ndarray
@@ -118,7 +118,7 @@ class MeshScanner:
         self._box = _enlarged_box(self._vertices) if bounded and len(self._vertices) else _EVERYWHERE
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._faces))
-        self._cells = TriangleCells.build(self._vertices, self._faces)
+        self._cells: TriangleCells | None = None  # built by the first scan that keeps its cloud
         self._camera_rays = camera_rays(config)
         self._tangents = np.array([np.tan(config.hfov / 2), np.tan(config.vfov / 2)])
 
@@ -126,27 +126,30 @@ class MeshScanner:
     def rays_per_scan(self) -> int:
         return len(self._camera_rays)
 
-    def scan(self, pose: Pose, rng: np.random.Generator | None = None) -> Scan:
+    def scan(self, pose: Pose, rng: np.random.Generator | None = None, cloud: bool = True) -> Scan:
         """Scan from one pose; ``rng`` draws the range noise when ``noise_std`` > 0."""
-        return self.scan_many([pose], rng)[0]
+        return self.scan_many([pose], rng, cloud=cloud)[0]
 
     def scan_many(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None,
-                  noiseless: bool = False) -> list[Scan]:
+                  noiseless: bool = False, cloud: bool = True) -> list[Scan]:
         """Scan from many poses with as few open3d calls as memory allows.
 
         ``noiseless`` casts exact ranges even when the sensor has noise (for ground truth).
+        ``cloud`` False leaves ``Scan.cloud`` None: the canonical triangles cost about 1 ms a
+        scan, which a caller that only integrates grids or covers points need not pay (its
+        ``points`` and ``hit`` are the same either way).
         """
-        return list(self.iter_scans(poses, rng, noiseless))
+        return list(self.iter_scans(poses, rng, noiseless, cloud))
 
     def iter_scans(self, poses: Sequence[Pose] | ViewSet, rng: np.random.Generator | None = None,
-                   noiseless: bool = False) -> Iterator[Scan]:
+                   noiseless: bool = False, cloud: bool = True) -> Iterator[Scan]:
         """Like ``scan_many`` but yields scans batch by batch, so memory stays bounded."""
         if noiseless:
             rng = None
         elif self.config.noise_std > 0 and rng is None:
             raise ValueError("sensor.noise_std > 0 needs a numpy Generator: pass rng=np.random.default_rng(seed)")
         for positions, rotations in self._batches(poses):
-            yield from self._cast(positions, rotations, rng)
+            yield from self._cast(positions, rotations, rng, cloud)
 
     def iter_hit_points(self, poses: Sequence[Pose] | ViewSet) -> Iterator[np.ndarray]:
         """The (H, 3) float32 hit points of a noise-free scan from each pose, the same as
@@ -189,23 +192,36 @@ class MeshScanner:
         _plane_distances(rays, cast, triangles, self._vertices, self._faces, t_cast)
         return rays, cast, triangles, t_cast
 
-    def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None) -> list[Scan]:
+    @property
+    def cells(self) -> TriangleCells:
+        """The mesh's ``TriangleCells``, built on first use."""
+        if self._cells is None:
+            self._cells = TriangleCells.build(self._vertices, self._faces)
+        return self._cells
+
+    def _cast(self, positions: np.ndarray, rotations: np.ndarray, rng: np.random.Generator | None,
+              cloud: bool) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
         rays, cast, triangles, t_cast = self._distances(positions, rotations)
-        t_cloud = np.empty(len(cast), dtype=np.float64)  # only scans keep clouds: not iter_hit_points
-        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self._cells, t_cloud)
+        t_cloud = None
+        if cloud:
+            t_cloud = np.empty(len(cast), dtype=np.float64)
+            _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self.cells, t_cloud)
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
             noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
             t_cast[finite] += noise
-            t_cloud[finite] += noise  # finite where t_cast is: the same draw for the same ray
+            if t_cloud is not None:
+                t_cloud[finite] += noise  # finite where t_cast is: the same draw for the same ray
         t_hit = np.full(n_views * n_rays, np.inf)
         t_hit[cast] = t_cast
         points = np.empty((n_views, n_rays, 3), dtype=np.float32)
         hit = np.empty((n_views, n_rays), dtype=bool)
         _end_points(rays, t_hit, self.config.near, self.config.far, points.reshape(-1, 3), hit.reshape(-1))
-        cloud, counts = _hit_points(rays, cast, t_cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
-        clouds = np.split(cloud, np.cumsum(counts)[:-1])  # the same hits, on the canonical triangles
+        clouds = [None] * n_views
+        if t_cloud is not None:
+            kept, counts = _hit_points(rays, cast, t_cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
+            clouds = np.split(kept, np.cumsum(counts)[:-1])  # the same hits, on the canonical triangles
         return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v], clouds[v]) for v in range(n_views)]
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:

@@ -55,6 +55,27 @@ def test_noise_is_seeded_and_needs_a_generator():
     np.testing.assert_allclose(exact.hit_points[:, 0], 0.1, atol=1e-6)
 
 
+def test_a_scan_without_its_cloud_is_the_same_scan_and_draws_the_same_noise():
+    """``cloud=False`` skips the canonical triangles (and never builds the cells); the range
+    image, the hits and the noise drawn after the scan are unchanged."""
+    mesh = trimesh.creation.annulus(0.05, 0.1, 0.15)  # curved faces and shared edges
+    poses = [Pose.look_at(p) for p in ([0.4, 0, 0], [0, 0.3, 0.2], [0.1, -0.1, 0.35])]
+    for noise_std in (0.0, 0.002):
+        config = SensorConfig(width=40, height=30, noise_std=noise_std)
+        lean, full = MeshScanner(mesh, config), MeshScanner(mesh, config)
+        rngs = np.random.default_rng(3), np.random.default_rng(3)
+        without = lean.scan_many(poses, rngs[0], cloud=False)
+        with_cloud = full.scan_many(poses, rngs[1])
+        assert lean._cells is None and full._cells is not None
+        for a, b in zip(without, with_cloud):
+            np.testing.assert_array_equal(a.points, b.points)
+            np.testing.assert_array_equal(a.hit, b.hit)
+            assert a.cloud is None and b.cloud is not None and len(b.cloud) == b.hit.sum() > 0
+            np.testing.assert_array_equal(a.cloud_points, a.hit_points)
+            np.testing.assert_allclose(b.cloud, b.hit_points, atol=1e-5)
+        assert rngs[0].random() == rngs[1].random()
+
+
 def test_near_and_far_range_limit_returns():
     mesh = trimesh.creation.box((0.2, 0.2, 0.2))
     pose = Pose.look_at([0.4, 0, 0])
@@ -210,9 +231,9 @@ def test_scan_clouds_do_not_depend_on_which_triangle_embree_reports():
     assert sum(moved) > 1000
     assert np.count_nonzero(t_cast != other_t_cast) > 100  # the reported planes' distances differ
     t_cloud, other_t_cloud = np.empty(len(cast)), np.empty(len(cast))
-    _canonical_distances(rays, cast, triangles, t_cast, scanner._vertices, scanner._faces, *scanner._cells, t_cloud)
+    _canonical_distances(rays, cast, triangles, t_cast, scanner._vertices, scanner._faces, *scanner.cells, t_cloud)
     _canonical_distances(rays, cast, other_triangles, other_t_cast, scanner._vertices, scanner._faces,
-                         *scanner._cells, other_t_cloud)
+                         *scanner.cells, other_t_cloud)
     np.testing.assert_array_equal(t_cloud, other_t_cloud)  # the canonical ones do not
     for a, b in zip(before, after):
         np.testing.assert_array_equal(a.cloud, b.cloud)
