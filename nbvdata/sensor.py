@@ -22,8 +22,13 @@ position, so they take it from the *canonical* triangle: among the triangles nea
 (``TriangleCells``) that the ray meets within ``EDGE_TOLERANCE`` of their border and within
 ``DEPTH_WINDOW`` of the reported hit, the lowest-numbered of those within ``DEPTH_TOLERANCE`` of
 the nearest - the same triangle whichever of them Embree reported (``Scan.cloud``;
-``_canonical_distances``). Not covered: a ray that grazes the border of the surface itself (an
-open edge, a silhouette), which one CPU's Embree counts as a hit and another's as a miss.
+``_canonical_distances``). A ray that passes within ``GRAZE_TOLERANCE`` of an *outline* of the
+surface (an open edge, a silhouette) may hit on one CPU and pass beside it on another; the
+clouds pass every such hit through (``_grazes``: eight rays around it must all meet the surface
+there) and take what the ray meets beyond it, or nothing - what a CPU that let it pass finds.
+The grids and coverage keep Embree's answers (a flipped ray changes a voxel's count only where no
+other ray reaches it). Not covered: a noisy sensor's draws follow Embree's hits, so a flip there
+shifts the noise of the rays after it.
 
 Only the rays that meet the mesh's bounding box (slightly enlarged) go to Embree: the others
 cannot hit it. Embree traces every ray on its own, so the subset changes no ray's answer (tested
@@ -56,6 +61,16 @@ DEPTH_TOLERANCE = 2.0**-20  # 0.95 um
 DEPTH_WINDOW = 2.0**-17  # 7.6 um
 # How far from a hit point a candidate can lie (along the ray, then in its plane), with room to spare.
 REACH = 2.0 * (DEPTH_WINDOW + EDGE_TOLERANCE)
+# A ray that passes this near the border of the surface it meets may, on another CPU, pass beside
+# it where that border is an outline (``_grazes``): about 10 times Embree's float32 doubt here.
+GRAZE_TOLERANCE = 2.0**-20  # 0.95 um
+# How far across a ray its eight neighbours of the outline test lie: each crosses every edge within
+# GRAZE_TOLERANCE of the ray whose outward side lies within 22.5 degrees of its offset.
+GRAZE_OFFSET = 2.0 * GRAZE_TOLERANCE
+# A neighbour that passes this near a triangle's border counts as inside it (the seams of a fan).
+GRAZE_SEAM = 2.0**-24
+# Outlines (or restarts) one ray may pass through before its cloud gives up on it (no point).
+MAX_PASSES = 8
 _EVERYWHERE = np.array([[-np.inf] * 3, [np.inf] * 3])  # a box every ray meets (MeshScanner(bounded=False))
 # Rays per open3d call; bounds the rays buffer to about 64 views x 25k rays x 24 B = 40 MB.
 _RAYS_PER_CALL = 64 * 176 * 144
@@ -156,7 +171,7 @@ class MeshScanner:
         ``scan.hit_points``, without the end points of the rays that return nothing."""
         for positions, rotations in self._batches(poses):
             rays, cast, _, t_cast = self._distances(positions, rotations, every=False)
-            points, counts = _hit_points(rays, cast, t_cast, t_cast, self.config.near, self.config.far,
+            points, counts = _hit_points(rays, cast, t_cast, self.config.near, self.config.far,
                                          self.rays_per_scan, len(positions))
             yield from np.split(points, np.cumsum(counts)[:-1])
 
@@ -203,10 +218,7 @@ class MeshScanner:
               cloud: bool) -> list[Scan]:
         n_views, n_rays = len(positions), self.rays_per_scan
         rays, cast, triangles, t_cast = self._distances(positions, rotations)
-        t_cloud = None
-        if cloud:
-            t_cloud = np.empty(len(cast), dtype=np.float64)
-            _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self.cells, t_cloud)
+        t_cloud = self._cloud_distances(rays, cast, triangles, t_cast) if cloud else None
         if rng is not None and self.config.noise_std > 0:
             finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
             noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
@@ -220,9 +232,51 @@ class MeshScanner:
         _end_points(rays, t_hit, self.config.near, self.config.far, points.reshape(-1, 3), hit.reshape(-1))
         clouds = [None] * n_views
         if t_cloud is not None:
-            kept, counts = _hit_points(rays, cast, t_cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
+            kept, counts = _hit_points(rays, cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
             clouds = np.split(kept, np.cumsum(counts)[:-1])  # the same hits, on the canonical triangles
         return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v], clouds[v]) for v in range(n_views)]
+
+    def _cloud_distances(self, rays: np.ndarray, cast: np.ndarray, triangles: np.ndarray,
+                         t_cast: np.ndarray) -> np.ndarray:
+        """(C,) float64 each cast ray's distance to its cloud point, inf for none (module docstring).
+
+        The canonical triangle's plane (``_canonical_distances``); a hit that grazes an outline
+        (``_grazes``) is passed through: the ray is cast again from DEPTH_WINDOW beyond it (by
+        Embree, each distance then measured along the original ray), up to MAX_PASSES casts, so a
+        CPU that lets it pass and one that does not find the same surface behind, or none.
+        rays (M, 6) float32, cast (C,) int64, triangles (C,) uint32, t_cast (C,) float64.
+        """
+        t_cloud = np.empty(len(cast), dtype=np.float64)
+        canon = np.empty(len(cast), dtype=np.int64)
+        graze = np.empty(len(cast), dtype=np.bool_)
+        self._canonical(rays, cast, triangles, t_cast, t_cloud, canon, graze)
+        pending = np.flatnonzero(graze)  # cast again from t_from, each distance along its original ray
+        t_from = t_cloud[pending] + DEPTH_WINDOW
+        for _ in range(MAX_PASSES):
+            if not len(pending):
+                return t_cloud
+            which = cast[pending]
+            again = np.empty((len(pending), 6), dtype=np.float32)
+            _beyond(rays, which, t_from, again)
+            reported = self._triangles(again)
+            t_again = np.empty(len(pending), dtype=np.float64)
+            _plane_distances(rays, which, reported, self._vertices, self._faces, t_again)
+            early = t_again < t_from  # a surface at the restart itself, within Embree's doubt: look past it
+            met = ~early
+            t_now, canon_now, graze_now = (np.empty(int(met.sum()), dtype=dtype) for dtype in (np.float64, np.int64,
+                                                                                            np.bool_))
+            self._canonical(rays, which[met], reported[met], t_again[met], t_now, canon_now, graze_now)
+            t_cloud[pending[met]] = t_now
+            t_from = np.concatenate([t_from[early] + DEPTH_TOLERANCE, t_now[graze_now] + DEPTH_WINDOW])
+            pending = np.concatenate([pending[early], pending[met][graze_now]])
+        t_cloud[pending] = np.inf  # still passing outlines after MAX_PASSES casts: no point
+        return t_cloud
+
+    def _canonical(self, rays, cast, triangles, t_cast, t_cloud, canon, graze) -> None:
+        """The canonical distances and triangles of the reported hits, and which of them graze an
+        outline (``_canonical_distances``, ``_grazes``), into t_cloud, canon and graze (C,)."""
+        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self.cells, t_cloud, canon)
+        _grazes(rays, cast, t_cloud, canon, self._vertices, self._faces, *self.cells, graze)
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:
         """(M,) uint32 the triangle each of ``rays`` (M, 6) float32 hits first, NO_HIT for none."""
@@ -425,20 +479,25 @@ def _fill_cells(first, last, shape):
 
 @numba.njit(cache=True)
 def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
-    """(t, margin) of a ray (float64 origin and direction) and triangle ``f``: t its distance to
-    the triangle's plane (as ``_plane_distances``), margin the signed distance (metres, in the
-    plane) of that plane point from the triangle's nearest edge, negative outside; margin -inf
+    """(t, margin, gap) of a ray (float64 origin and direction) and triangle ``f``: t its
+    distance to the triangle's plane (as ``_plane_distances``); margin the signed distance
+    (metres, in the plane) of that plane point from the triangle's nearest edge, negative
+    outside; gap the least signed distance between the ray's line and an edge's line, what a
+    perturbation of the ray must exceed to cross that edge - the quantity Embree's float32 doubt
+    acts on (h |cos| / sin(ray, edge) for a plane point h inside the edge). margin and gap -inf
     for a degenerate triangle or a ray parallel to it."""
     t, nx, ny, nz = _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)
-    norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
-    if not np.isfinite(t) or norm == 0.0:
-        return t, -np.inf
+    norm2 = (nx * nx + ny * ny) + nz * nz
+    if not np.isfinite(t) or norm2 == 0.0:
+        return t, -np.inf, -np.inf
+    norm = math.sqrt(norm2)
+    along = abs((nx * dx + ny * dy) + nz * dz)
     a, b, d = faces[f, 0], faces[f, 1], faces[f, 2]
     ax, ay, az = np.float64(vertices[a, 0]), np.float64(vertices[a, 1]), np.float64(vertices[a, 2])
     bx, by, bz = np.float64(vertices[b, 0]), np.float64(vertices[b, 1]), np.float64(vertices[b, 2])
     cx, cy, cz = np.float64(vertices[d, 0]), np.float64(vertices[d, 1]), np.float64(vertices[d, 2])
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-    margin = np.inf
+    margin, gap = np.inf, np.inf
     for edge in range(3):  # (start, end) = (a, b), (b, c), (c, a): inside is the positive side
         if edge == 0:
             sx, sy, sz, ex, ey, ez = ax, ay, az, bx, by, bz
@@ -450,38 +509,43 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
         vx, vy, vz = px - sx, py - sy, pz - sz
         wx, wy, wz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         length = math.sqrt((ux * ux + uy * uy) + uz * uz)
-        if length == 0.0:
-            return t, -np.inf
-        margin = min(margin, ((wx * nx + wy * ny) + wz * nz) / (norm * length))
-    return t, margin
+        qx, qy, qz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux  # d x u: the ray across the edge
+        across = math.sqrt((qx * qx + qy * qy) + qz * qz)
+        if length == 0.0 or across == 0.0:
+            return t, -np.inf, -np.inf
+        inside = (wx * nx + wy * ny) + wz * nz
+        margin = min(margin, inside / (norm * length))
+        gap = min(gap, inside * along / (norm2 * across))
+    return t, margin, gap
 
 
 @numba.njit(cache=True)
-def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, size, shape, start, members, t_cloud):
-    """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle.
+def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, size, shape, start, members, t_cloud,
+                         canon):
+    """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle canon[c].
 
     The candidates are the triangles of the hit point's cell (``TriangleCells``: ``low`` ..
     ``members``) that the ray meets within EDGE_TOLERANCE of their border and within DEPTH_WINDOW
     of the reported hit (``triangle[c]`` at ``t_cast[c]``); the canonical one is the
     lowest-numbered of those met within DEPTH_TOLERANCE of the nearest of them. Every triangle
     within Embree's doubt of the first hit is a candidate whichever of them Embree reported, so
-    the choice is the same on every CPU. No candidate (a degenerate triangle): the reported
-    distance."""
+    the choice is the same on every CPU. A miss: t_cloud inf, canon -1; no candidate (a
+    triangle touched edge-on, its plane point farther than EDGE_TOLERANCE outside it; a
+    degenerate one): the reported distance and canon -1 (``_grazes`` passes it)."""
     distances = np.empty(16)
+    ids = np.empty(16, dtype=np.int64)
     for c in range(cast.shape[0]):
         t = t_cast[c]
         t_cloud[c] = t
+        canon[c] = -1
         if triangle[c] >= faces.shape[0] or not np.isfinite(t):
             continue
         i = cast[c]
         ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
         dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
-        cx = min(max(int(math.floor((ox + t * dx - low[0]) / size)), 0), shape[0] - 1)
-        cy = min(max(int(math.floor((oy + t * dy - low[1]) / size)), 0), shape[1] - 1)
-        cz = min(max(int(math.floor((oz + t * dz - low[2]) / size)), 0), shape[2] - 1)
-        cell = (cx * shape[1] + cy) * shape[2] + cz
+        j0, j1 = _cell_range(ox + t * dx, oy + t * dy, oz + t * dz, low, size, shape, start)
         found, nearest = 0, np.inf
-        for j in range(start[cell], start[cell + 1]):
+        for j in range(j0, j1):
             g = members[j]
             t_g = _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0]
             if not abs(t_g - t) <= DEPTH_WINDOW or not t_g > 0.0:  # most of the cell: another depth
@@ -489,29 +553,115 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, siz
             if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[1] >= -EDGE_TOLERANCE:
                 if found == distances.shape[0]:  # very many triangles through one point
                     distances = np.concatenate((distances, distances))
+                    ids = np.concatenate((ids, ids))
                 distances[found] = t_g  # in triangle order
+                ids[found] = g
                 found += 1
                 nearest = min(nearest, t_g)
         for j in range(found):  # ascending: the first one within DEPTH_TOLERANCE is the lowest-numbered
             if distances[j] <= nearest + DEPTH_TOLERANCE:
                 t_cloud[c] = distances[j]
+                canon[c] = ids[j]
+                break
+
+
+@numba.njit(cache=True, inline="always")
+def _cell_range(px, py, pz, low, size, shape, start):
+    """(first, end) of the ``TriangleCells`` members of the cell holding point p."""
+    cx = min(max(int(math.floor((px - low[0]) / size)), 0), shape[0] - 1)
+    cy = min(max(int(math.floor((py - low[1]) / size)), 0), shape[1] - 1)
+    cz = min(max(int(math.floor((pz - low[2]) / size)), 0), shape[2] - 1)
+    cell = (cx * shape[1] + cy) * shape[2] + cz
+    return start[cell], start[cell + 1]
+
+
+@numba.njit(cache=True)
+def _grazes(rays, cast, t_cloud, canon, vertices, faces, low, size, shape, start, members, graze):
+    """graze[c]: ray cast[c] passes within GRAZE_TOLERANCE of an outline of the surface at its
+    canonical triangle canon[c] (met at t_cloud[c]) - an open edge or a silhouette, where another
+    CPU's Embree may let the ray through.
+
+    The test, only where the ray passes within GRAZE_TOLERANCE of the canonical triangle's
+    border: the eight rays parallel to it, GRAZE_OFFSET away in directions 45 degrees apart across
+    it (each crosses any edge within GRAZE_TOLERANCE of the ray whose outward side is within
+    22.5 degrees of its offset), must each pass inside some triangle whose plane the ray itself
+    meets within DEPTH_WINDOW of the hit, meeting it within REACH of the hit point (so the
+    triangle is in the hit point's cell) - the surface there. One that meets none has crossed an
+    outline (or met a surface seen within 7 degrees of edge-on: it passes too). A surface behind
+    the outline within DEPTH_WINDOW counts as covering it: a CPU that lets the ray through to it
+    finds the outline's triangle among its candidates (``_canonical_distances``), nearer, so both
+    keep it. A reported hit with no candidate at all (a triangle seen edge-on, touched within
+    Embree's doubt; a degenerate one) passes too: no surface lies within DEPTH_WINDOW of it."""
+    half = math.sqrt(0.5)
+    for c in range(cast.shape[0]):
+        f = canon[c]
+        graze[c] = f < 0 and np.isfinite(t_cloud[c])  # a hit with no candidate: an edge-on touch
+        if f < 0:
+            continue
+        i = cast[c]
+        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
+        t = t_cloud[c]
+        if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)[2] >= GRAZE_TOLERANCE:
+            continue
+        # u, v: a fixed orthonormal pair across the ray (d x the axis it is least along, then d x u)
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        if ax <= ay and ax <= az:
+            ux, uy, uz = 0.0, dz, -dy
+        elif ay <= az:
+            ux, uy, uz = -dz, 0.0, dx
+        else:
+            ux, uy, uz = dy, -dx, 0.0
+        norm = math.sqrt((ux * ux + uy * uy) + uz * uz)
+        ux, uy, uz = ux / norm, uy / norm, uz / norm
+        vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+        norm = math.sqrt((vx * vx + vy * vy) + vz * vz)
+        vx, vy, vz = vx / norm, vy / norm, vz / norm
+        j0, j1 = _cell_range(ox + t * dx, oy + t * dy, oz + t * dz, low, size, shape, start)
+        for k in range(8):
+            a = (1.0, half, 0.0, -half, -1.0, -half, 0.0, half)[k]
+            b = (0.0, half, 1.0, half, 0.0, -half, -1.0, -half)[k]
+            sx = ox + GRAZE_OFFSET * (a * ux + b * vx)
+            sy = oy + GRAZE_OFFSET * (a * uy + b * vy)
+            sz = oz + GRAZE_OFFSET * (a * uz + b * vz)
+            met = False
+            for j in range(j0, j1):
+                g = members[j]
+                if not abs(_plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0] - t) <= DEPTH_WINDOW:
+                    continue
+                t_g, _, gap = _triangle_hit(sx, sy, sz, dx, dy, dz, vertices, faces, g)
+                if gap >= -GRAZE_SEAM and (t_g - t) ** 2 + GRAZE_OFFSET**2 <= REACH**2:
+                    met = True
+                    break
+            if not met:
+                graze[c] = True
                 break
 
 
 @numba.njit(cache=True)
-def _hit_points(rays, cast, t_cast, t_at, near, far, rays_per_view, views):
-    """The hit points of the cast rays (near <= t_cast <= far), each at its distance ``t_at``
-    (t_cast itself, or the clouds' canonical distance), computed as ``_end_points`` does, in ray
-    order: points (H, 3) float32 and counts (views,) int64 per view."""
+def _beyond(rays, cast, t_from, out):
+    """out (C, 6) float32: rays cast[c] restarted at distance t_from[c] along them (in float64,
+    then rounded), the same direction."""
+    for c in range(cast.shape[0]):
+        i = cast[c]
+        for a in range(3):
+            out[c, a] = np.float64(rays[i, a]) + t_from[c] * np.float64(rays[i, 3 + a])
+            out[c, 3 + a] = rays[i, 3 + a]
+
+
+@numba.njit(cache=True)
+def _hit_points(rays, cast, t, near, far, rays_per_view, views):
+    """The hit points of the cast rays at their distance t (near <= t[c] <= far: Embree's, or the
+    clouds'), computed as ``_end_points`` does, in ray order: points (H, 3) float32 and counts
+    (views,) int64 per view."""
     points = np.empty((cast.shape[0], 3), dtype=np.float32)
     counts = np.zeros(views, dtype=np.int64)
     h = 0
     for c in range(cast.shape[0]):
-        t = t_cast[c]
-        if t >= near and t <= far:
+        if t[c] >= near and t[c] <= far:
             i = cast[c]
             for a in range(3):
-                points[h, a] = np.float64(rays[i, a]) + t_at[c] * np.float64(rays[i, 3 + a])
+                points[h, a] = np.float64(rays[i, a]) + t[c] * np.float64(rays[i, 3 + a])
             counts[i // rays_per_view] += 1
             h += 1
     return points[:h], counts
