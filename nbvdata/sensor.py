@@ -84,9 +84,11 @@ class Scan:
     points : (N, 3) float32, N = width * height; the hit point of each ray, or for rays with
              no return a point at twice the far range along the ray
     hit : (N,) bool, True where the ray returned a measurement
-    cloud : (H, 3) float32 the measured points as the partial clouds keep them, each on its
-            ray's canonical triangle (module docstring); None: ``hit_points`` (a scan cast
-            with ``cloud=False``, or not cast here, e.g. a real sensor's)
+    cloud : (K, 3) float32 the measured points as the partial clouds keep them, in ray order:
+            each on its ray's canonical triangle, a grazed outline's hit replaced by what the
+            ray meets beyond it or left out (module docstring), so K is about H; None:
+            ``hit_points`` (a scan cast with ``cloud=False``, or not cast here, e.g. a real
+            sensor's)
     """
 
     origin: np.ndarray
@@ -101,7 +103,7 @@ class Scan:
 
     @property
     def cloud_points(self) -> np.ndarray:
-        """(H, 3) float32 the measured points for a partial cloud: ``cloud``, else ``hit_points``."""
+        """(K, 3) float32 the measured points for a partial cloud: ``cloud``, else ``hit_points``."""
         return self.hit_points if self.cloud is None else self.cloud
 
 
