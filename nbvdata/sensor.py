@@ -152,9 +152,9 @@ class MeshScanner:
         """Scan from many poses with as few open3d calls as memory allows.
 
         ``noiseless`` casts exact ranges even when the sensor has noise (for ground truth).
-        ``cloud`` False leaves ``Scan.cloud`` None: the canonical triangles cost about 1 ms a
-        scan, which a caller that only integrates grids or covers points need not pay (its
-        ``points`` and ``hit`` are the same either way).
+        ``cloud`` False leaves ``Scan.cloud`` None: the clouds' rules (canonical triangles,
+        outlines passed through) cost 1-2 ms a scan, which a caller that only integrates grids or
+        covers points need not pay (its ``points`` and ``hit`` are the same either way).
         """
         return list(self.iter_scans(poses, rng, noiseless, cloud))
 
@@ -235,7 +235,7 @@ class MeshScanner:
         clouds = [None] * n_views
         if t_cloud is not None:
             kept, counts = _hit_points(rays, cast, t_cloud, self.config.near, self.config.far, n_rays, n_views)
-            clouds = np.split(kept, np.cumsum(counts)[:-1])  # the same hits, on the canonical triangles
+            clouds = np.split(kept, np.cumsum(counts)[:-1])  # on canonical triangles, outlines passed through
         return [Scan(rays[v * n_rays, :3].copy(), points[v], hit[v], clouds[v]) for v in range(n_views)]
 
     def _cloud_distances(self, rays: np.ndarray, cast: np.ndarray, triangles: np.ndarray,
@@ -277,8 +277,10 @@ class MeshScanner:
     def _canonical(self, rays, cast, triangles, t_cast, t_cloud, canon, graze) -> None:
         """The canonical distances and triangles of the reported hits, and which of them graze an
         outline (``_canonical_distances``, ``_grazes``), into t_cloud, canon and graze (C,)."""
-        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self.cells, t_cloud, canon)
-        _grazes(rays, cast, t_cloud, canon, self._vertices, self._faces, *self.cells, graze)
+        gap = np.empty(len(cast), dtype=np.float64)
+        _canonical_distances(rays, cast, triangles, t_cast, self._vertices, self._faces, *self.cells, t_cloud, canon,
+                             gap)
+        _grazes(rays, cast, t_cloud, canon, gap, self._vertices, self._faces, *self.cells, graze)
 
     def _triangles(self, rays: np.ndarray) -> np.ndarray:
         """(M,) uint32 the triangle each of ``rays`` (M, 6) float32 hits first, NO_HIT for none."""
@@ -523,8 +525,9 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
 
 @numba.njit(cache=True)
 def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, size, shape, start, members, t_cloud,
-                         canon):
-    """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle canon[c].
+                         canon, canon_gap):
+    """t_cloud[c] = distance along ray cast[c] to the plane of its canonical triangle canon[c],
+    canon_gap[c] the ray's gap to that triangle's border (``_triangle_hit``; -inf for canon -1).
 
     The candidates are the triangles of the hit point's cell (``TriangleCells``: ``low`` ..
     ``members``) that the ray meets within EDGE_TOLERANCE of their border and within DEPTH_WINDOW
@@ -536,10 +539,12 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, siz
     degenerate one): the reported distance and canon -1 (``_grazes`` passes it)."""
     distances = np.empty(16)
     ids = np.empty(16, dtype=np.int64)
+    gaps = np.empty(16)
     for c in range(cast.shape[0]):
         t = t_cast[c]
         t_cloud[c] = t
         canon[c] = -1
+        canon_gap[c] = -np.inf
         if triangle[c] >= faces.shape[0] or not np.isfinite(t):
             continue
         i = cast[c]
@@ -552,18 +557,22 @@ def _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, low, siz
             t_g = _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0]
             if not abs(t_g - t) <= DEPTH_WINDOW or not t_g > 0.0:  # most of the cell: another depth
                 continue
-            if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[1] >= -EDGE_TOLERANCE:
+            _, margin, gap = _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)
+            if margin >= -EDGE_TOLERANCE:
                 if found == distances.shape[0]:  # very many triangles through one point
                     distances = np.concatenate((distances, distances))
                     ids = np.concatenate((ids, ids))
+                    gaps = np.concatenate((gaps, gaps))
                 distances[found] = t_g  # in triangle order
                 ids[found] = g
+                gaps[found] = gap
                 found += 1
                 nearest = min(nearest, t_g)
         for j in range(found):  # ascending: the first one within DEPTH_TOLERANCE is the lowest-numbered
             if distances[j] <= nearest + DEPTH_TOLERANCE:
                 t_cloud[c] = distances[j]
                 canon[c] = ids[j]
+                canon_gap[c] = gaps[j]
                 break
 
 
@@ -578,10 +587,10 @@ def _cell_range(px, py, pz, low, size, shape, start):
 
 
 @numba.njit(cache=True)
-def _grazes(rays, cast, t_cloud, canon, vertices, faces, low, size, shape, start, members, graze):
+def _grazes(rays, cast, t_cloud, canon, canon_gap, vertices, faces, low, size, shape, start, members, graze):
     """graze[c]: ray cast[c] passes within GRAZE_TOLERANCE of an outline of the surface at its
-    canonical triangle canon[c] (met at t_cloud[c]) - an open edge or a silhouette, where another
-    CPU's Embree may let the ray through.
+    canonical triangle canon[c] (met at t_cloud[c], the ray canon_gap[c] inside its border) - an
+    open edge or a silhouette, where another CPU's Embree may let the ray through.
 
     The test, only where the ray passes within GRAZE_TOLERANCE of the canonical triangle's
     border: the eight rays parallel to it, GRAZE_OFFSET away in directions 45 degrees apart across
@@ -595,17 +604,18 @@ def _grazes(rays, cast, t_cloud, canon, vertices, faces, low, size, shape, start
     keep it. A reported hit with no candidate at all (a triangle seen edge-on, touched within
     Embree's doubt; a degenerate one) passes too: no surface lies within DEPTH_WINDOW of it."""
     half = math.sqrt(0.5)
+    across = np.array([(1.0, 0.0), (half, half), (0.0, 1.0), (-half, half), (-1.0, 0.0), (-half, -half),
+                       (0.0, -1.0), (half, -half)])  # the eight directions, on (u, v)
+    offsets = np.empty((8, 3))
+    met = np.empty(8, dtype=np.bool_)
     for c in range(cast.shape[0]):
-        f = canon[c]
-        graze[c] = f < 0 and np.isfinite(t_cloud[c])  # a hit with no candidate: an edge-on touch
-        if f < 0:
+        graze[c] = canon[c] < 0 and np.isfinite(t_cloud[c])  # a hit with no candidate: an edge-on touch
+        if canon[c] < 0 or canon_gap[c] >= GRAZE_TOLERANCE:
             continue
         i = cast[c]
         ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
         dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
         t = t_cloud[c]
-        if _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f)[2] >= GRAZE_TOLERANCE:
-            continue
         # u, v: a fixed orthonormal pair across the ray (d x the axis it is least along, then d x u)
         ax, ay, az = abs(dx), abs(dy), abs(dz)
         if ax <= ay and ax <= az:
@@ -619,25 +629,28 @@ def _grazes(rays, cast, t_cloud, canon, vertices, faces, low, size, shape, start
         vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
         norm = math.sqrt((vx * vx + vy * vy) + vz * vz)
         vx, vy, vz = vx / norm, vy / norm, vz / norm
+        for k in range(8):  # the neighbours' origins
+            a, b = across[k, 0], across[k, 1]
+            offsets[k, 0] = ox + GRAZE_OFFSET * (a * ux + b * vx)
+            offsets[k, 1] = oy + GRAZE_OFFSET * (a * uy + b * vy)
+            offsets[k, 2] = oz + GRAZE_OFFSET * (a * uz + b * vz)
+        met[:] = False
+        unmet = 8
         j0, j1 = _cell_range(ox + t * dx, oy + t * dy, oz + t * dz, low, size, shape, start)
-        for k in range(8):
-            a = (1.0, half, 0.0, -half, -1.0, -half, 0.0, half)[k]
-            b = (0.0, half, 1.0, half, 0.0, -half, -1.0, -half)[k]
-            sx = ox + GRAZE_OFFSET * (a * ux + b * vx)
-            sy = oy + GRAZE_OFFSET * (a * uy + b * vy)
-            sz = oz + GRAZE_OFFSET * (a * uz + b * vz)
-            met = False
-            for j in range(j0, j1):
-                g = members[j]
-                if not abs(_plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0] - t) <= DEPTH_WINDOW:
+        for j in range(j0, j1):  # each triangle's depth once, for all eight
+            g = members[j]
+            if not abs(_plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, g)[0] - t) <= DEPTH_WINDOW:
+                continue
+            for k in range(8):
+                if met[k]:
                     continue
-                t_g, _, gap = _triangle_hit(sx, sy, sz, dx, dy, dz, vertices, faces, g)
+                t_g, _, gap = _triangle_hit(offsets[k, 0], offsets[k, 1], offsets[k, 2], dx, dy, dz, vertices, faces, g)
                 if gap >= -GRAZE_SEAM and (t_g - t) ** 2 + GRAZE_OFFSET**2 <= REACH**2:
-                    met = True
-                    break
-            if not met:
-                graze[c] = True
+                    met[k] = True
+                    unmet -= 1
+            if unmet == 0:
                 break
+        graze[c] = unmet > 0
 
 
 @numba.njit(cache=True)

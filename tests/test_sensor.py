@@ -180,7 +180,7 @@ def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
         triangle = np.full(200, f, dtype=np.uint32)
         t_cast, t_cloud, canon = np.empty(200), np.empty(200), np.empty(200, dtype=np.int64)
         _plane_distances(rays, cast, triangle, vertices, faces, t_cast)
-        _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, *cells, t_cloud, canon)
+        _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, *cells, t_cloud, canon, np.empty(200))
         answers[f] = t_cast, t_cloud
     assert np.all(np.isfinite(answers[0][1]))
     assert np.count_nonzero(answers[0][0] != answers[1][0]) > 100  # the reported planes disagree
@@ -273,7 +273,7 @@ def test_a_ray_that_grazes_an_outline_gets_the_same_cloud_point_whether_it_hits_
         t_cast, t_canonical = np.empty(n), np.empty(n)
         _plane_distances(rays, cast, triangles, scanner._vertices, scanner._faces, t_cast)
         _canonical_distances(rays, cast, triangles, t_cast, scanner._vertices, scanner._faces, *scanner.cells,
-                             t_canonical, np.empty(n, dtype=np.int64))
+                             t_canonical, np.empty(n, dtype=np.int64), np.empty(n))
         answers[side] = t_canonical, scanner._cloud_distances(rays, cast, triangles, t_cast)
     box_t, wall_t = answers["box"][0], answers["wall"][0]
     assert np.all(wall_t - box_t > 0.2)  # the canonical triangles: one ray, two answers
