@@ -27,8 +27,8 @@ surface (an open edge, a silhouette) may hit on one CPU and pass beside it on an
 clouds pass every such hit through (``_grazes``: eight rays around it must all meet the surface
 there) and take what the ray meets beyond it, or nothing - what a CPU that let it pass finds.
 The grids and coverage keep Embree's answers (a flipped ray changes a voxel's count only where no
-other ray reaches it). Not covered: a noisy sensor's draws follow Embree's hits, so a flip there
-shifts the noise of the rays after it.
+other ray reaches it). A noisy sensor draws one range error per pixel, hit or not, so a flipped
+ray changes no other ray's draw.
 
 Only the rays that meet the mesh's bounding box (slightly enlarged) go to Embree: the others
 cannot hit it. Embree traces every ray on its own, so the subset changes no ray's answer (tested
@@ -222,11 +222,12 @@ class MeshScanner:
         rays, cast, triangles, t_cast = self._distances(positions, rotations)
         t_cloud = self._cloud_distances(rays, cast, triangles, t_cast) if cloud else None
         if rng is not None and self.config.noise_std > 0:
-            finite = np.isfinite(t_cast)  # in ray order, as the noise has always been drawn
-            noise = rng.normal(0.0, self.config.noise_std, int(finite.sum()))
-            t_cast[finite] += noise
+            # One draw per pixel of every image, in pixel order, whether its ray hits or not: a ray
+            # that hits on one CPU and misses on another moves no other ray's draw; inf stays inf.
+            noise = rng.normal(0.0, self.config.noise_std, n_views * n_rays)[cast]
+            t_cast += noise
             if t_cloud is not None:
-                t_cloud[finite] += noise  # finite where t_cast is: the same draw for the same ray
+                t_cloud += noise  # the same draw for the same ray, also where it was passed through
         t_hit = np.full(n_views * n_rays, np.inf)
         t_hit[cast] = t_cast
         points = np.empty((n_views, n_rays, 3), dtype=np.float32)

@@ -55,6 +55,38 @@ def test_noise_is_seeded_and_needs_a_generator():
     np.testing.assert_allclose(exact.hit_points[:, 0], 0.1, atol=1e-6)
 
 
+def test_a_ray_that_hits_on_one_cpu_and_misses_on_another_moves_no_other_rays_noise():
+    """Noise is drawn per pixel, hit or not: when Embree gives a few rays a miss (another CPU's
+    answer at an outline), every other pixel keeps its noisy point, in the image and the cloud.
+    (Drawn per hit, as before, every ray after a flipped one would take its neighbour's draw.)"""
+    scanner = MeshScanner(trimesh.creation.box((0.2, 0.2, 0.2)), SensorConfig(width=40, height=30, noise_std=0.002))
+    poses = [Pose.look_at([0.4, 0.05, 0.1]), Pose.look_at([-0.1, 0.3, 0.2])]
+    before = scanner.scan_many(poses, np.random.default_rng(5))
+    embree = scanner._triangles
+    flipped = {}
+
+    def other_cpu(rays):
+        triangles = embree(rays).copy()
+        hits = np.flatnonzero(triangles != NO_HIT)
+        chosen = hits[[0, len(hits) // 3, len(hits) // 2]]  # early rays too, so that later ones would shift
+        triangles[chosen] = NO_HIT
+        flipped["count"] = len(chosen)
+        return triangles
+
+    scanner._triangles = other_cpu
+    after = scanner.scan_many(poses, np.random.default_rng(5))
+    scanner._triangles = embree
+    changed = 0
+    for a, b in zip(before, after):
+        same = a.hit == b.hit
+        changed += int(np.count_nonzero(~same))
+        assert not (b.hit & ~a.hit).any()  # only hits became misses
+        np.testing.assert_array_equal(a.points[same], b.points[same])
+        kept = (a.hit & b.hit)[a.hit]  # a's cloud rows (its hits, pixel order) that b also hit
+        np.testing.assert_array_equal(a.cloud[kept], b.cloud)
+    assert changed == flipped["count"] == 3  # the flips are in the images (one call for both views)
+
+
 def test_a_scan_without_its_cloud_is_the_same_scan_and_draws_the_same_noise():
     """``cloud=False`` skips the canonical triangles (and never builds the cells); the range
     image, the hits and the noise drawn after the scan are unchanged."""
