@@ -231,7 +231,7 @@ stage_select() {
     three=$(best scores-3)
     regression=$(best regression)
     log "best snapshots on the validation objects: $fc3, $three, $regression"
-    evaluate_val baselines --planners infogain,oracle,random
+    evaluate_val baselines --planners infogain,oracle,random,farthest
     evaluate_val regression-nostall --planners regression --checkpoint "$regression" --no-stall
     evaluate_val regression-tta --planners regression --checkpoint "$regression" --tta
     evaluate_val scores-3-tta --planners scores --score-checkpoint "$three" --tta
@@ -253,7 +253,7 @@ stage_test() {
     fi
     : "${FINAL_SCORES:?set FINAL_SCORES to the score checkpoint(s) the validation objects chose (comma-separated: an ensemble)}"
     : "${FINAL_REGRESSION:?set FINAL_REGRESSION to the regression checkpoint the validation objects chose}"
-    local planners=${FINAL_PLANNERS:-scores,regression,infogain,oracle,random}
+    local planners=${FINAL_PLANNERS:-scores,regression,infogain,oracle,random,farthest}
     log "the test objects, once: $TEST_MESHES"
     # shellcheck disable=SC2086
     nice -n 10 nbvtrain evaluate --meshes "$TEST_MESHES" --planners "$planners" --score-checkpoint "$FINAL_SCORES" \

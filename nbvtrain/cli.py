@@ -244,7 +244,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for message in skipped:
         print(f"nbvtrain evaluate: {message}", file=sys.stderr)
     if not planners:
-        raise ConfigError("no planner left to run: give checkpoints or add infogain, oracle or random to --planners")
+        raise ConfigError("no planner left to run: give checkpoints or add infogain, oracle, random or farthest to "
+                          "--planners")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     workers = args.workers or os.cpu_count() or 1
     report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers, args.floors,
@@ -457,8 +458,8 @@ def build_parser() -> Parser:
                           f"released one, {released['regression']})")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
                           "is released: without one the classification planner is skipped)")
-    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,setcover,random",
-                          help="comma-separated, of scores,regression,classification,infogain,oracle,setcover,random,hybrid "
+    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,setcover,random,farthest",
+                          help="comma-separated, of scores,regression,classification,infogain,oracle,setcover,random,farthest,hybrid "
                           "(default all but hybrid), and policies on nbvdata.env's observation as module:function or "
                           "path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "

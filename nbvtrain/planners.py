@@ -33,6 +33,10 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   (everything observable covered) it takes the view adding the most, as the oracle without the
   overlap rule. The overlap rule is no part of the plan, as in SCVP.
 - ``random``: a seeded uniformly random candidate view.
+- ``farthest``: the unscanned candidate view farthest in angle from every pose scanned so far
+  (greedy farthest-point sampling of the view sphere). It reads neither the grid nor the mesh:
+  what spreading the views alone covers, the baseline that shows whether a planner's grid
+  reading adds anything to that.
 - ``module:function`` (or ``path/to/file.py:function``): a policy on the observation of the
   reconstruction environment ``nbvdata.env`` (``PolicyPlanner``), e.g. one trained by RL.
 - ``hybrid``: the score network's standardised scores plus ``weight`` times the standardised
@@ -71,7 +75,7 @@ from nbvtrain.scores import pick, standardise
 if TYPE_CHECKING:
     from nbvtrain.predict import Predictor
 
-PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "hybrid")
+PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "farthest", "hybrid")
 LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
 
 
@@ -317,6 +321,37 @@ class RandomPlanner(Planner):
         return self.views[int(self.rng.integers(len(self.views)))]
 
 
+class FarthestPlanner(Planner):
+    """The unscanned candidate view farthest in angle from every scanned pose (the lowest index
+    among equals); the first view with nothing scanned. Deterministic, no seed."""
+
+    name = "farthest"
+
+    def __init__(self, views: ViewSet):
+        self.views = views
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        units = self.views.unit_positions
+        positions = np.array([pose.position for pose in observation.poses], dtype=np.float64).reshape(-1, 3)
+        return self.views[farthest_view(units, positions)]
+
+
+def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
+    """The index of the view among ``units`` (V, 3) unit directions farthest in angle from its
+    nearest scanned position ``positions`` (P, 3) (object-centred, any radius), skipping the views
+    the positions mark (``scanned_views``); the first one when every view is marked or P = 0.
+    Cosines are summed term by term (no BLAS), so the choice is the same on every CPU."""
+    units = np.asarray(units, dtype=np.float64)
+    taken = scanned_views(positions, units)
+    if not len(positions) or taken.all():
+        return 0
+    nearest = np.full(len(units), -np.inf)
+    for x, y, z in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
+        norm = math.sqrt(x * x + y * y + z * z)
+        nearest = np.maximum(nearest, (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm)
+    return int(np.argmin(np.where(taken, np.inf, nearest)))
+
+
 class PolicyPlanner(Planner):
     """A policy on the environment's observation (``nbvdata.env``), named ``module:function`` or
     ``path/to/file.py:function``: ``function(observation) -> action``.
@@ -546,6 +581,8 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
             planners.append(SetCoverPlanner(views, config.oracle.cover_time_limit))
         elif name == "random":
             planners.append(RandomPlanner(views))
+        elif name == "farthest":
+            planners.append(FarthestPlanner(views))
         elif ":" in name:
             planners.append(PolicyPlanner(name, views))
         else:

@@ -23,8 +23,8 @@ from nbvtrain.config import TrainConfig
 from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, front_view,
                                plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
-from nbvtrain.planners import (InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
-                               build_planners)
+from nbvtrain.planners import (FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
+                               build_planners, farthest_view)
 from nbvtrain.scene import scene_record
 from nbvtrain.train import _save
 from nbvdata.views import view_sphere
@@ -87,9 +87,9 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
                  "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
                  str(checkpoints["nbvscore-3"]), "--scans", "5", "--starts", "2",
                  "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
-    assert "42 reconstructions" in capsys.readouterr().out
+    assert "48 reconstructions" in capsys.readouterr().out
     rows = _rows(out / "coverage.csv")
-    planners = ["scores", "regression", "classification", "infogain", "oracle", "setcover", "random"]
+    planners = ["scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "farthest"]
     assert len(rows) == 2 * len(planners) * 3 * 5  # meshes x planners x starts x scans
     assert {r["planner"] for r in rows} == set(planners) and {r["mesh"] for r in rows} == {"mug", "ring"}
     runs: dict[tuple, list[dict]] = {}
@@ -107,7 +107,7 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
         oracle = float(runs[(mesh, "oracle", start)][-1]["coverage"])
         assert oracle >= float(runs[(mesh, "random", start)][-1]["coverage"])
     summary = (out / "summary.md").read_text()
-    assert "| object | scores | regression | classification | infogain | oracle | setcover | random |" in summary
+    assert "| object | scores | regression | classification | infogain | oracle | setcover | random | farthest |" in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
     assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
@@ -140,7 +140,7 @@ def test_two_workers_give_the_same_outputs_as_one(meshes, checkpoints, tmp_path,
     finally:
         (meshes / "broken.obj").unlink()
     rows = outputs["1"][0]
-    assert len(rows) == 2 * 7 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}
+    assert len(rows) == 2 * 8 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}  # meshes x planners x starts x scans
     assert outputs["2"] == outputs["1"]
 
 
@@ -280,6 +280,31 @@ def test_oracle_and_random_planners(scene, config):
         planner.start(7)
         picks.append([tuple(planner.next_pose(observation).position) for _ in range(5)])
     assert picks[0] == picks[1] and len(set(picks[0])) > 1
+
+
+def test_farthest_takes_the_unscanned_view_farthest_from_every_scan():
+    """Against the angles themselves (arctan2 of cross and dot): the view picked has the largest
+    angle to its nearest scanned pose; never a scanned view; any radius; ties to the lowest index."""
+    views = view_sphere(load_config(SimConfig).views)
+    units = views.unit_positions
+    scanned = [int(np.random.default_rng(2).integers(len(units)))]
+    for _ in range(12):
+        positions = units[scanned] * 0.4
+        pick = farthest_view(units, positions)
+        angles = np.array([[np.arctan2(np.linalg.norm(np.cross(u, p)), u @ p) for p in units[scanned]] for u in units])
+        nearest = angles.min(axis=1)
+        nearest[scanned] = -1.0
+        assert pick not in scanned and nearest[pick] >= nearest.max() - 1e-9
+        assert farthest_view(units, positions * 7.5) == pick  # only directions count
+        scanned.append(pick)
+    assert len(set(scanned)) == len(scanned)
+    axes = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0], [-1.0, 0, 0]])
+    assert farthest_view(axes, np.array([[2.0, 0, 0]])) == 3  # the opposite view
+    assert farthest_view(axes, np.array([[1.0, 0, 0], [-1.0, 0, 0]])) == 1  # 1 and 2 tie: the lower
+    assert farthest_view(axes, np.zeros((0, 3))) == 0
+    planner = FarthestPlanner(views)
+    observation = Observation(np.full((32, 32, 32), 0.5, np.float32), tuple(views[i] for i in scanned[:3]))
+    assert np.array_equal(planner.next_pose(observation).position, views.positions[scanned[3]])
 
 
 def test_evaluation_starts_are_not_generation_starts(meshes, tmp_path):
