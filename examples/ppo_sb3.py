@@ -1,5 +1,6 @@
 """Stable-Baselines3 PPO on ``nbvdata/Reconstruct-v0``: trains on four built-in shapes, then
-compares it with a random and the greedy-oracle policy on the two built-in shapes held out.
+compares it with a random, a farthest-view and the greedy-oracle policy on the two built-in shapes
+held out.
 
     pip install -e ".[rl]" && pip install stable-baselines3 --no-deps  # SB3 on the torch installed
     python examples/ppo_sb3.py --timesteps 20000 --minutes 30
@@ -38,6 +39,7 @@ from torch import nn
 
 import gymnasium
 import nbvdata.env  # noqa: F401  (registers nbvdata/Reconstruct-v0)
+from nbvdata.views import farthest_view
 
 TRAIN_SHAPES = ["builtin:mug", "builtin:table_lamp", "builtin:step_block", "builtin:snowman"]
 HELD_OUT = ["builtin:ring", "builtin:pill"]
@@ -120,10 +122,12 @@ def main() -> None:
           f"{model.num_timesteps / trained_cpu:.1f} steps per CPU second); saved {args.out / 'model.zip'}")
     test = gymnasium.make("nbvdata/Reconstruct-v0", meshes=HELD_OUT, overrides=args.overrides, info_scores=True)
     views = test.action_space.n
+    units = test.unwrapped.views.unit_positions
     policies = {
         "PPO": lambda observation, info, rng: int(model.predict(observation, deterministic=True)[0]),
         "PPO, scanned views masked": lambda observation, info, rng: masked_choice(model, observation),
         "random": lambda observation, info, rng: int(rng.integers(views)),
+        "farthest (no grid)": lambda observation, info, rng: farthest_view(units, units[observation["taken"] != 0]),
         "greedy oracle": lambda observation, info, rng: max(info["nbv"], 0),
     }
     print(f"held-out shapes {', '.join(HELD_OUT)}, {args.starts} starts each; mean after the last scan:")

@@ -209,6 +209,22 @@ def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
     return taken
 
 
+def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
+    """The index of the view among ``units`` (V, 3) unit directions farthest in angle from its
+    nearest scanned position ``positions`` (P, 3) (object-centred, any radius), skipping the views
+    the positions mark (``scanned_views``); the first one when every view is marked or P = 0.
+    Cosines are summed term by term (no BLAS), so the choice is the same on every CPU."""
+    units = np.asarray(units, dtype=np.float64)
+    taken = scanned_views(positions, units)
+    if not len(positions) or taken.all():
+        return 0
+    nearest = np.full(len(units), -np.inf)
+    for x, y, z in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
+        norm = math.sqrt(x * x + y * y + z * z)
+        nearest = np.maximum(nearest, (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm)
+    return int(np.argmin(np.where(taken, np.inf, nearest)))
+
+
 def parse_view_indices(text: str, count: int, flag: str, example: str) -> list[int]:
     """Comma-separated view indices ("3,41,120") of a view set of ``count`` -> [3, 41, 120];
     ValueError with a one-line message naming the option ``flag`` (and ``example``, a valid

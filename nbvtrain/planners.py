@@ -68,7 +68,8 @@ from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
-from nbvdata.views import FIXED_LAYOUTS, Pose, ViewSet, look_at_rotations, scanned_views, sphere_positions
+from nbvdata.views import (FIXED_LAYOUTS, Pose, ViewSet, farthest_view, look_at_rotations, scanned_views,
+                           sphere_positions)
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
 
@@ -334,22 +335,6 @@ class FarthestPlanner(Planner):
         units = self.views.unit_positions
         positions = np.array([pose.position for pose in observation.poses], dtype=np.float64).reshape(-1, 3)
         return self.views[farthest_view(units, positions)]
-
-
-def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
-    """The index of the view among ``units`` (V, 3) unit directions farthest in angle from its
-    nearest scanned position ``positions`` (P, 3) (object-centred, any radius), skipping the views
-    the positions mark (``scanned_views``); the first one when every view is marked or P = 0.
-    Cosines are summed term by term (no BLAS), so the choice is the same on every CPU."""
-    units = np.asarray(units, dtype=np.float64)
-    taken = scanned_views(positions, units)
-    if not len(positions) or taken.all():
-        return 0
-    nearest = np.full(len(units), -np.inf)
-    for x, y, z in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
-        norm = math.sqrt(x * x + y * y + z * z)
-        nearest = np.maximum(nearest, (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm)
-    return int(np.argmin(np.where(taken, np.inf, nearest)))
 
 
 class PolicyPlanner(Planner):

@@ -24,10 +24,10 @@ from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, front
                                plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
 from nbvtrain.planners import (FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
-                               build_planners, farthest_view)
+                               build_planners)
 from nbvtrain.scene import scene_record
 from nbvtrain.train import _save
-from nbvdata.views import view_sphere
+from nbvdata.views import farthest_view, view_sphere
 
 from reference_infogain import sampled_scores
 
