@@ -5,7 +5,11 @@
 - mean vector: the mean training target as it is, inside the sphere: the constant with the
   lowest MSE, what a network that has learnt nothing of the grid converges to;
 - nearest neighbour: each validation grid gets the label of the training grid closest to it
-  (Euclidean distance between the occupancy-probability grids).
+  (Euclidean distance between the occupancy-probability grids);
+- farthest view: the unscanned candidate view farthest in angle from every view the state's run
+  scanned (its view state; ``nbvdata.views.farthest_view``), learning nothing: what spreading the
+  views alone scores. It needs the view states of ``nbvdata generate``'s shards (``Skipped``
+  for imported data).
 """
 
 from __future__ import annotations
@@ -13,8 +17,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from nbvtrain.data import ShardSet, to_grids
+from nbvdata.shards import ShardError
+from nbvdata.views import farthest_view
+from nbvtrain.data import ShardSet, load_view_states, to_grids
 from nbvtrain.metrics import evaluate, unit
+
+
+class Skipped(Exception):
+    """A baseline the data cannot give; its message says why."""
 
 
 def mean_direction(data: ShardSet, train_idx: np.ndarray, val_idx: np.ndarray) -> dict[str, float]:
@@ -56,10 +66,23 @@ def nearest_neighbour(data: ShardSet, train_idx: np.ndarray, val_idx: np.ndarray
     return _score(data, data.targets[neighbours], val_idx)
 
 
+def farthest(data: ShardSet, train_idx: np.ndarray, val_idx: np.ndarray) -> dict[str, float]:
+    if data.view_units is None:
+        raise Skipped("the shards hold no candidate views (imported data)")
+    try:
+        taken = load_view_states(data.paths, poses="nearest")[val_idx]
+    except ShardError as error:
+        raise Skipped(str(error)) from None
+    units = data.view_units
+    predictions = np.array([units[farthest_view(units, units[scanned])] for scanned in taken]).reshape(-1, 3)
+    return _score(data, predictions, val_idx)
+
+
 def _score(data: ShardSet, predictions: np.ndarray, val_idx: np.ndarray) -> dict[str, float]:
     gains = data.gains[val_idx] if data.gains is not None else None
     valid = data.valid[val_idx] if data.valid is not None else None
     return evaluate(predictions, data.targets[val_idx], gains, data.view_units, valid)
 
 
-BASELINES = {"mean direction": mean_direction, "mean vector": mean_vector, "nearest neighbour": nearest_neighbour}
+BASELINES = {"mean direction": mean_direction, "mean vector": mean_vector, "nearest neighbour": nearest_neighbour,
+             "farthest view": farthest}

@@ -176,8 +176,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_baselines(args: argparse.Namespace) -> int:
-    """Score the mean-direction and nearest-neighbour predictors on a split, as fit would make it."""
-    from nbvtrain.baselines import BASELINES
+    """Score the mean-direction, nearest-neighbour and farthest-view predictors on a split, as fit would make it."""
+    from nbvtrain.baselines import BASELINES, Skipped
     from nbvtrain.data import load_shards, split_indices
     from nbvtrain.metrics import format_ratio
 
@@ -190,7 +190,11 @@ def cmd_baselines(args: argparse.Namespace) -> int:
               f"{'seconds':>8s}")
         for name, baseline in BASELINES.items():
             started = time.perf_counter()
-            scores = baseline(data, train_idx, val_idx)
+            try:
+                scores = baseline(data, train_idx, val_idx)
+            except Skipped as reason:
+                print(f"{name:20s} skipped: {reason}")
+                continue
             print(f"{name:20s} {scores['mse']:8.4f} {scores['mae']:8.4f} {scores['angle_deg']:7.1f}d "
                   f"{format_ratio(scores['gain_ratio']):>10s} {format_ratio(scores['invalid_share']):>8s} "
                   f"{time.perf_counter() - started:8.1f}")
@@ -424,7 +428,7 @@ def build_parser() -> Parser:
     plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
     plan.set_defaults(func=cmd_plan)
 
-    baselines = sub.add_parser("baselines", help="mean-direction and nearest-neighbour scores on a split")
+    baselines = sub.add_parser("baselines", help="mean-direction, nearest-neighbour and farthest-view scores on a split")
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     baselines.add_argument("--split", choices=["random", "mesh"], default="random", help="random samples (paper, "
                            "default) or whole meshes held out, as nbvtrain fit --split")

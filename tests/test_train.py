@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,9 +18,10 @@ import torch
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.grid import OccupancyGrid
 from nbvdata.shards import Shard, ShardError
-from nbvtrain.baselines import mean_direction, mean_vector, nearest_neighbour_indices
+from nbvdata.views import farthest_view
+from nbvtrain.baselines import Skipped, farthest, mean_direction, mean_vector, nearest_neighbour_indices
 from nbvtrain.cli import main
-from nbvtrain.data import load_shards, rotate_quarter_turns, split_indices
+from nbvtrain.data import load_shards, load_view_states, rotate_quarter_turns, split_indices
 from nbvtrain.predict import Predictor
 from nbvtrain.train import _StopOnCtrlC, _StopRequested
 
@@ -260,6 +262,14 @@ def test_baselines(shards):
         assert 0 < scores["mse"] < 1 and 0 < scores["gain_ratio"] <= 1
         # on the training samples themselves the unscaled mean is the constant with the least MSE
         assert mean_vector(data, train, train)["mse"] <= mean_direction(data, train, train)["mse"]
+        # the farthest view from the state's scans: a valid candidate view, never a scanned one (gain 0)
+        spread = farthest(data, train, val)
+        assert 0 < spread["gain_ratio"] <= 1 and spread["angle_deg"] > 0
+        taken = load_view_states(data.paths, poses="nearest")[val]
+        picks = [farthest_view(data.view_units, data.view_units[t]) for t in taken]
+        assert not any(t[i] for t, i in zip(taken, picks))
+        with pytest.raises(Skipped, match="no candidate views"):
+            farthest(SimpleNamespace(view_units=None), train, val)
     finally:
         data.close()
 
