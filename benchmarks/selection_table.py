@@ -4,6 +4,8 @@
     python benchmarks/selection_table.py --top 3 runs/selection/val/scores-3-e*   # the 3 best rows' checkpoints
     python benchmarks/selection_table.py --stopped 3 runs/selection/val/scores-3-e*  # exit 0 once the
                                                            # last 3 folders (by epoch) brought no new best
+    python benchmarks/selection_table.py --by-scan runs/selection/val/spread*   # mean coverage after
+                                                           # every scan, one column per planner
 
 Per folder and planner: the objects and part it evaluated (config.yaml: the published version and
 part of ``--manifest``, or the ``--meshes`` folder), the mean coverage after the last scan over
@@ -77,6 +79,38 @@ def rows(folders: list[Path]) -> list[dict]:
     return table
 
 
+def scan_means(folders: list[Path]) -> tuple[list[str], dict[tuple[str, str, int], float]]:
+    """(column names, {(column, group, scan): mean coverage % after that scan}) over every
+    (object, start) of each planner of each finished folder; group: all, shared or procedural;
+    a column is ``folder/planner`` when several folders are given."""
+    values: dict[tuple[str, str, int], list[float]] = {}
+    columns: list[str] = []
+    finished = [folder for folder in folders if (folder / "coverage.csv").is_file()]
+    for folder in finished:
+        with open(folder / "coverage.csv", newline="") as handle:
+            for row in csv.DictReader(handle):
+                column = row["planner"] if len(finished) == 1 else f"{folder.name}/{row['planner']}"
+                if column not in columns:
+                    columns.append(column)
+                group = "procedural" if PROCEDURAL.fullmatch(row["mesh"]) else "shared"
+                for key in ((column, group, int(row["scan"])), (column, "all", int(row["scan"]))):
+                    values.setdefault(key, []).append(float(row["coverage"]))
+    return columns, {key: 100 * statistics.mean(v) for key, v in values.items()}
+
+
+def print_by_scan(folders: list[Path]) -> None:
+    columns, means = scan_means(folders)
+    for group in ("shared", "procedural", "all"):
+        scans = sorted({scan for (_, g, scan) in means if g == group})
+        if not scans:
+            continue
+        print(f"\n{group}: mean coverage % after each scan\n")
+        print("| scan | " + " | ".join(columns) + " |\n|---|" + "---|" * len(columns))
+        for scan in scans:
+            cells = [f"{means[(c, group, scan)]:.1f}" if (c, group, scan) in means else "-" for c in columns]
+            print(f"| {scan} | " + " | ".join(cells) + " |")
+
+
 def rank(row: dict, by: str) -> float:
     return row[by] if row[by] is not None else row["all"]
 
@@ -96,11 +130,16 @@ def main(argv: list[str] | None = None) -> int:
                         "comma-separated (an ensemble's --score-checkpoint)")
     parser.add_argument("--stopped", type=int, metavar="PATIENCE",
                         help="exit 0 when the last PATIENCE folders by epoch brought no new best, else 1")
+    parser.add_argument("--by-scan", action="store_true", help="the mean coverage after every scan instead, one "
+                        "column per planner, for the shared meshes, the procedural objects and all")
     args = parser.parse_args(argv)
     table = rows(args.folders)
     if not table:
         print("selection_table: no finished evaluation (coverage.csv) in the folders given", file=sys.stderr)
         return 2
+    if args.by_scan:
+        print_by_scan(args.folders)
+        return 0
     if args.top is not None:
         ranked = sorted(table, key=lambda row: -rank(row, args.by))[:args.top]  # stable: the first of equals
         checkpoints = [row["checkpoint"] for row in ranked]

@@ -194,6 +194,12 @@ def test_the_selection_table_ranks_by_the_shared_meshes_and_says_when_a_run_stop
     assert run("--stopped", "2").returncode == 0 and run("--stopped", "3").returncode == 1
     table = run().stdout
     assert "| net-e004 | scores **best** | v 1.0.0 val | 2 | 2 | 75.0 | 90.0 | 60.0 | 2.0 | epoch-4.pt |" in table
+    by_scan = run("--by-scan").stdout  # one column per folder's planner, one row per scan
+    shared_part = by_scan.split("shared:")[1].split("procedural:")[0]
+    assert "| scan | net-e002/scores | net-e004/scores | net-e006/scores | net-e008/scores |" in shared_part
+    assert "| 1 | 10.0 | 10.0 | 10.0 | 10.0 |" in shared_part and "| 2 | 80.0 | 90.0 | 85.0 | 88.0 |" in shared_part
+    assert "| 2 | 70.0 | 60.0 | 65.0 | 62.0 |" in by_scan.split("procedural:")[1].split("all:")[0]
+    assert "| 2 | 75.0 | 75.0 | 75.0 | 75.0 |" in by_scan.split("all:")[1]
 
 
 def _mesh_ids(folder: Path) -> set[str]:
