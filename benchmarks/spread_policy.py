@@ -61,20 +61,8 @@ def _regression(observation: dict, weight: float) -> int:
     return _pick(score, observation["taken"])
 
 
-def regression_w0(observation: dict) -> int:
-    return _regression(observation, 0.0)
-
-
-def regression_w05(observation: dict) -> int:
-    return _regression(observation, 0.5)
-
-
-def regression_w1(observation: dict) -> int:
-    return _regression(observation, 1.0)
-
-
-def regression_w2(observation: dict) -> int:
-    return _regression(observation, 2.0)
+regression_w0, regression_w05, regression_w1, regression_w2 = (functools.partial(_regression, weight=w)
+                                                              for w in (0.0, 0.5, 1.0, 2.0))
 
 
 @functools.cache
@@ -97,17 +85,4 @@ def _scores(observation: dict, weight: float) -> int:
     return _pick(score, taken)
 
 
-def scores_s0(observation: dict) -> int:
-    return _scores(observation, 0.0)
-
-
-def scores_s025(observation: dict) -> int:
-    return _scores(observation, 0.25)
-
-
-def scores_s05(observation: dict) -> int:
-    return _scores(observation, 0.5)
-
-
-def scores_s1(observation: dict) -> int:
-    return _scores(observation, 1.0)
+scores_s0, scores_s025, scores_s05, scores_s1 = (functools.partial(_scores, weight=w) for w in (0.0, 0.25, 0.5, 1.0))
