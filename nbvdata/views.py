@@ -209,20 +209,45 @@ def scanned_views(positions: np.ndarray, view_units: np.ndarray) -> np.ndarray:
     return taken
 
 
-def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
-    """The index of the view among ``units`` (V, 3) unit directions farthest in angle from its
-    nearest scanned position ``positions`` (P, 3) (object-centred, any radius), skipping the views
-    the positions mark (``scanned_views``); the first one when every view is marked or P = 0.
-    Cosines are summed term by term (no BLAS), so the choice is the same on every CPU."""
+def nearest_scan_cosines(units: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """(V,) float64: for each of ``units`` (V, 3) unit directions, the cosine of the angle to its
+    nearest scanned position among ``positions`` (P, 3) (object-centred, any radius); -inf with
+    P = 0. Summed term by term (no BLAS), so the same on every CPU."""
     units = np.asarray(units, dtype=np.float64)
-    taken = scanned_views(positions, units)
-    if not len(positions) or taken.all():
-        return 0
     nearest = np.full(len(units), -np.inf)
     for x, y, z in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
         norm = math.sqrt(x * x + y * y + z * z)
         nearest = np.maximum(nearest, (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm)
-    return int(np.argmin(np.where(taken, np.inf, nearest)))
+    return nearest
+
+
+def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
+    """The index of the view among ``units`` (V, 3) unit directions farthest in angle from its
+    nearest scanned position ``positions`` (P, 3) (object-centred, any radius), skipping the views
+    the positions mark (``scanned_views``); the first one when every view is marked or P = 0
+    (the lowest index among equals)."""
+    taken = scanned_views(positions, units)
+    if not len(np.asarray(positions).reshape(-1, 3)) or taken.all():
+        return 0
+    return int(np.argmin(np.where(taken, np.inf, nearest_scan_cosines(units, positions))))
+
+
+def spread_view(units: np.ndarray, positions: np.ndarray, direction: np.ndarray, weight: float) -> int:
+    """The view among ``units`` (V, 3) not marked by ``positions`` (P, 3) with the highest
+    cos(direction, view) - weight * cos(view, its nearest scanned position): a planner's answer
+    ``direction`` (3,) (any length) spread away from what was scanned. Weight 0: the unmarked view
+    nearest the answer; a large weight: ``farthest_view``, the answer breaking ties. The first view
+    when every view is marked; the lowest index among equals. Same on every CPU."""
+    units = np.asarray(units, dtype=np.float64)
+    taken = scanned_views(positions, units)
+    if taken.all():
+        return 0
+    x, y, z = np.asarray(direction, dtype=np.float64).reshape(3)
+    norm = math.sqrt(x * x + y * y + z * z) or 1.0
+    score = (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm
+    if len(np.asarray(positions).reshape(-1, 3)) and weight:
+        score = score - weight * nearest_scan_cosines(units, positions)
+    return int(np.argmax(np.where(taken, -np.inf, score)))
 
 
 def parse_view_indices(text: str, count: int, flag: str, example: str) -> list[int]:

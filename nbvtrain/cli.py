@@ -243,8 +243,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
     weights = _numbers(args.hybrid_weight, "--hybrid-weight")
     checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint}
+    if args.spread is not None and args.no_stall:
+        raise ConfigError("--spread never repeats a view already: drop --no-stall")
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall, args.tta,
-                                       weights, args.hybrid_stride)
+                                       weights, args.hybrid_stride, args.spread)
     for message in skipped:
         print(f"nbvtrain evaluate: {message}", file=sys.stderr)
     if not planners:
@@ -260,6 +262,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     settings = settings_dict(config, meshes=args.meshes, **selection, planners=[p.name for p in planners],
                              scans=args.scans, starts=args.starts, seed=args.seed, checkpoints=recorded,
                              no_stall=args.no_stall, tta=args.tta, floors=args.floors,
+                             **({"spread": args.spread} if args.spread is not None else {}),
                              **({"hybrid_weights": weights, "hybrid_stride": args.hybrid_stride}
                                 if "hybrid" in names else {}))
     write_outputs(report, args.out, [p.name for p in planners], skipped, settings)
@@ -469,6 +472,9 @@ def build_parser() -> Parser:
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
                           "-nostall; off = the paper's behaviour)")
+    evaluate.add_argument("--spread", type=non_negative_float, metavar="W", help="regression and classification take "
+                          "the unscanned candidate view v with the highest cos(answer, v) - W cos(v, its nearest scan) "
+                          "(planner names get -spreadW; off = the paper's behaviour; docs/selection.md measured W)")
     evaluate.add_argument("--scans", type=Integer(2), default=10, help="scans per reconstruction, the start and at "
                           "least one planned one (default 10)")
     evaluate.add_argument("--starts", type=non_negative_int, default=0,

@@ -13,6 +13,10 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 - ``regression``: a trained NBV-net; its output direction, taken as it is (not snapped to a
   candidate), at the view sphere's radius, looking at the centre (``nbvtrain.predict``).
 - ``classification``: NBV-Net's 14 fixed views; the chosen class's position.
+- With ``spread`` W (``nbvtrain evaluate --spread W``), regression and classification take the
+  unscanned candidate view v with the highest cos(answer, v) - W cos(v, its nearest scan)
+  (``nbvdata.views.spread_view``): their answer spread away from what was scanned; it never
+  repeats a view. W = 0 is the unscanned view nearest the answer.
 - With ``no_stall`` (``nbvtrain evaluate --no-stall``), regression and classification do not
   repeat a scan: when the candidate view nearest to their pose is one a scan already marked,
   classification takes its next most likely class that repeats nothing, regression (and
@@ -69,7 +73,7 @@ from nbvdata.episode import Reconstruction
 from nbvdata.grid import _walk_start, _walk_step
 from nbvdata.sensor import camera_rays
 from nbvdata.views import (FIXED_LAYOUTS, Pose, ViewSet, farthest_view, look_at_rotations, scanned_views,
-                           sphere_positions)
+                           sphere_positions, spread_view)
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
 
@@ -121,7 +125,7 @@ class LearnedPlanner(Planner):
 
     def __init__(self, checkpoint: str | Path | Sequence[str | Path], radius: float, expect: str,
                  views: ViewSet | None = None, no_stall: bool = False, config: SimConfig | None = None,
-                 tta: bool = False):
+                 tta: bool = False, spread: float | None = None):
         from nbvtrain.predict import Predictor
         from nbvtrain.scene import check_scene
 
@@ -140,8 +144,8 @@ class LearnedPlanner(Planner):
                                   f"{flags.get(task, '--checkpoint')}")
             if config is not None:
                 check_scene(predictor.scene, config, path)
-            if views is None and (task == "scores" or no_stall):
-                raise ValueError("a score network and the no-stall rule need the run's candidate views")
+            if views is None and (task == "scores" or no_stall or spread is not None):
+                raise ValueError("a score network, the no-stall and the spread rule need the run's candidate views")
             if task == "scores" and not np.allclose(views.unit_positions, predictor.view_units, atol=1e-9):
                 raise ConfigError(f"{path}: scores {len(predictor.view_units)} candidate views other than this run's "
                                   f"{len(views)}: run with the settings it was trained with (--config/--set views.*)")
@@ -151,9 +155,10 @@ class LearnedPlanner(Planner):
         if any((predictor.inputs == "points") != self.reads_points for predictor in self.predictors):
             raise ConfigError("an ensemble of grid and point networks: pass networks that read the same input")
         self.views, self.no_stall = views, no_stall and expect != "scores"
+        self.spread = spread if expect != "scores" else None
         self.name = (expect + ("-nostall" if self.no_stall else "") + (f"-ens{len(paths)}" if len(paths) > 1 else "")
-                     + ("-tta" if tta else ""))
-        self._arguments = (checkpoint, radius, expect, views, no_stall, config, tta)
+                     + (f"-spread{self.spread:g}" if self.spread is not None else "") + ("-tta" if tta else ""))
+        self._arguments = (checkpoint, radius, expect, views, no_stall, config, tta, spread)
 
     @property
     def checkpoints(self) -> list[str]:
@@ -201,6 +206,9 @@ class LearnedPlanner(Planner):
         if task == "scores":
             return self.views[self.next_view(observation)]
         (prediction,) = self.predictor.predict(observation.probabilities)
+        if self.spread is not None:
+            positions = np.array([pose.position for pose in observation.poses], dtype=np.float64).reshape(-1, 3)
+            return self.views[spread_view(self.views.unit_positions, positions, prediction.direction, self.spread)]
         if not self.no_stall:
             return prediction.pose
         units, taken = self.views.unit_positions, self.scanned(observation)
@@ -532,13 +540,15 @@ def _ray_information(origins, ends, probabilities, resolution, first_key, box_lo
 
 def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                    checkpoints: dict[str, Path | Sequence[Path] | None], no_stall: bool = False, tta: bool = False,
-                   hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4) -> tuple[list[Planner], list[str]]:
+                   hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4,
+                   spread: float | None = None) -> tuple[list[Planner], list[str]]:
     """The named planners, and a message for each learned one skipped for want of a checkpoint.
 
     ``checkpoints``: task (scores, regression, classification) -> checkpoint file (scores: also
     several, an ensemble), None for the released model of that task (``nbvtrain.release``) where
     there is one; ``hybrid`` takes the scores' and gives one planner per weight of
-    ``hybrid_weights``. ``tta``: quarter-turn averaging for every learned planner."""
+    ``hybrid_weights``. ``tta``: quarter-turn averaging for every learned planner; ``spread``: the
+    spread rule's weight for regression and classification (``LearnedPlanner``)."""
     from nbvtrain.release import NoReleasedModel, released_checkpoint
 
     planners, skipped = [], []
@@ -556,7 +566,7 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                 planners += [HybridPlanner(path, config, views, weight, tta, hybrid_stride)
                              for weight in hybrid_weights]
             else:
-                planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config, tta))
+                planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config, tta, spread))
         elif name == "infogain":
             planners.append(InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
                                             config.oracle.min_overlap, layout=config.views.layout))

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 import torch
 
 from nbvdata.cli import main as nbvdata_main
@@ -27,7 +28,7 @@ from nbvtrain.planners import (FarthestPlanner, InfoGainPlanner, Observation, Or
                                build_planners)
 from nbvtrain.scene import scene_record
 from nbvtrain.train import _save
-from nbvdata.views import farthest_view, view_sphere
+from nbvdata.views import farthest_view, spread_view, view_sphere
 
 from reference_infogain import sampled_scores
 
@@ -526,6 +527,55 @@ def test_no_stall_falls_back_to_an_unscanned_view(scene, config, checkpoints):
     assert int(np.argmax(units @ (np.array(plain) / np.linalg.norm(plain)))) != start
     (kept,), _ = build_planners(["regression"], config, scene.views, _learned(checkpoints), no_stall=True)
     assert _positions(reconstruct(scene, kept, start, 2, seed=0))[1] == plain
+
+
+def test_spread_takes_the_answer_away_from_the_scans():
+    """spread_view against the plain formula: weight 0 is the unscanned view nearest the answer,
+    a large weight the farthest view; never a scanned view; the answer's length does not count."""
+    units = view_sphere(load_config(SimConfig).views).unit_positions
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        scanned = rng.choice(len(units), size=int(rng.integers(1, 6)), replace=False)
+        positions, answer = units[scanned] * 0.4, rng.normal(size=3)
+        free = np.ones(len(units), dtype=bool)
+        free[scanned] = False
+        for weight in (0.0, 0.5, 2.0):
+            score = units @ (answer / np.linalg.norm(answer)) - weight * (units @ units[scanned].T).max(axis=1)
+            pick = spread_view(units, positions, answer * 3.0, weight)
+            assert free[pick] and score[pick] >= score[free].max() - 1e-9
+        assert spread_view(units, positions, answer, 1e9) == farthest_view(units, positions)
+    assert spread_view(units, units * 0.4, answer, 1.0) == 0  # every view scanned
+
+
+def test_spread_planners_never_repeat_and_follow_the_formula(scene, config, checkpoints):
+    """--spread W: a regression or classification planner's pose is the candidate view spread_view
+    picks for its network's answer and the poses scanned so far, so it never repeats a view."""
+    units = scene.views.unit_positions
+    for name in ("regression", "classification"):
+        (planner,), _ = build_planners([name], config, scene.views, _learned(checkpoints), spread=1.0)
+        assert planner.name == f"{name}-spread1"
+        rows = reconstruct(scene, planner, 3, 8, seed=0)
+        chosen = [int(np.argmax(units @ (p / np.linalg.norm(p)))) for p in np.array(_positions(rows))]
+        assert len(set(chosen)) == 8
+        poses = tuple(scene.views[i] for i in chosen[:3])
+        grid = np.full((scene.config.grid.size,) * 3, 0.5, dtype=np.float32)
+        (answer,) = planner.predictor.predict(grid)
+        expected = spread_view(units, np.array([p.position for p in poses]), answer.direction, 1.0)
+        assert np.array_equal(planner.next_pose(Observation(grid, poses)).position, scene.views.positions[expected])
+    (scores,), _ = build_planners(["scores"], config, scene.views, _learned(checkpoints), spread=1.0)
+    assert scores.name == "scores" and scores.spread is None  # the score network has its own view state
+
+
+def test_spread_on_the_command_line(meshes, checkpoints, tmp_path, capsys):
+    common = ["evaluate", "--meshes", str(meshes), "--planners", "regression,farthest", "--checkpoint",
+              str(checkpoints["nbvnet-3-3"]), "--scans", "2", "--config", str(SMOKE), "--no-progress"]
+    assert main([*common, "--spread", "1", "--no-stall", "--out", str(tmp_path / "both")]) == 2
+    assert "--spread never repeats a view already: drop --no-stall" in capsys.readouterr().err
+    assert not (tmp_path / "both").exists()
+    assert main([*common, "--spread", "0.5", "--out", str(tmp_path / "spread")]) == 0
+    assert {r["planner"] for r in _rows(tmp_path / "spread" / "coverage.csv")} == {"regression-spread0.5", "farthest"}
+    settings = yaml.safe_load((tmp_path / "spread" / "config.yaml").read_text())["evaluate"]
+    assert settings["spread"] == 0.5 and settings["planners"] == ["regression-spread0.5", "farthest"]
 
 
 def test_a_checkpoint_of_another_scene_is_refused(meshes, checkpoints, tmp_path, capsys):
