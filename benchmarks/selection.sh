@@ -234,7 +234,8 @@ stage_select() {
     evaluate_val baselines --planners infogain,oracle,random,farthest
     evaluate_val regression-nostall --planners regression --checkpoint "$regression" --no-stall
     evaluate_val regression-tta --planners regression --checkpoint "$regression" --tta
-    evaluate_val regression-spread --planners regression --checkpoint "$regression" --spread 1
+    evaluate_val regression-spread1 --planners regression --checkpoint "$regression" --spread 1
+    evaluate_val regression-spread2 --planners regression --checkpoint "$regression" --spread 2
     evaluate_val scores-3-tta --planners scores --score-checkpoint "$three" --tta
     evaluate_val ensemble-fc3-3 --planners scores --score-checkpoint "$fc3,$three"
     # the three best snapshots of nbvscore-3 as an ensemble (no more training)
