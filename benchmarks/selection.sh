@@ -20,7 +20,8 @@
 #                                                 # (regression-near-best, regression-dagger, regression-dagger2...)
 #   benchmarks/selection.sh scores-dagger         # the released score network's own runs on the training meshes
 #                                                 # (6 each, seed 11), every state labelled exactly: the data
-#                                                 # scores-fc3-wide adds
+#                                                 # scores-fc3-wide adds; fit scores-fc3-dagger fine-tunes the
+#                                                 # round's policy on the training part plus the round
 #   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
 #   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
 #   benchmarks/selection.sh table                 # every validation result so far, as one table
@@ -120,27 +121,35 @@ stage_dagger() {  # N: 4 runs per training mesh from other start views (seed N),
 # start views (seed 11) on each training mesh, every state labelled exactly; its moves are candidate views,
 # so the view state stays known (a score network can train on it). No clouds: the grid networks read none.
 SCORES_DAGGER=$DATA-scores-dagger1
+scores_dagger_policy() {  # DAGGER_POLICY, the smoke run's best scores-fc3, or the released score network
+    if [ -n "${DAGGER_POLICY:-}" ]; then echo "$DAGGER_POLICY"
+    elif [ "$SMOKE" = 1 ]; then best scores-fc3
+    else echo nbvtrain/released/nbvscore-fc3.pt; fi
+}
+
 stage_scores_dagger() {
     local policy
-    if [ -n "${DAGGER_POLICY:-}" ]; then policy=$DAGGER_POLICY
-    elif [ "$SMOKE" = 1 ]; then policy=$(best scores-fc3)
-    else policy=nbvtrain/released/nbvscore-fc3.pt; fi
+    policy=$(scores_dagger_policy)
     log "the score network's round: $policy on the training part of $NAME $VERSION -> $SCORES_DAGGER"
     nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$policy" \
         --runs-per-mesh 6 --seed 11 --workers "$WORKERS" --out "$SCORES_DAGGER" "${SCENE[@]}" --no-progress
+}
+
+rolled_by() {  # POLICY DATA [STAGE]: exit 2 unless DATA is a round POLICY rolled (policy.yaml's sha256)
+    if [ ! -f "$2/policy.yaml" ]; then
+        echo "selection.sh: $2 holds no round: run benchmarks/selection.sh ${3:-dagger} first" >&2
+        exit 2
+    elif [ "$(sha256sum < "$1" | cut -d' ' -f1)" != "$(sed -n 's/^sha256: //p' "$2/policy.yaml")" ]; then
+        echo "selection.sh: $1 did not roll $2 (policy.yaml); set DAGGER_POLICY to the checkpoint that did" >&2
+        exit 2
+    fi
 }
 
 dagger_flags() {  # N -> --add-train of rounds 1..N and --init the policy of round N (its sha256 checked)
     local round=$1 policy data i flags=""
     policy=$(dagger_policy "$round")
     data=$(dagger_data "$round")
-    if [ ! -f "$data/policy.yaml" ]; then
-        echo "selection.sh: $data holds no DAgger round: run benchmarks/selection.sh dagger $round first" >&2
-        exit 2
-    elif [ "$(sha256sum < "$policy" | cut -d' ' -f1)" != "$(sed -n 's/^sha256: //p' "$data/policy.yaml")" ]; then
-        echo "selection.sh: $policy did not roll $data (policy.yaml); set DAGGER_POLICY to the checkpoint that did" >&2
-        exit 2
-    fi
+    rolled_by "$policy" "$data" "dagger $round"
     for i in $(seq 1 "$round"); do flags="$flags --add-train $(dagger_data "$i")"; done
     echo "$flags --init $policy"
 }
@@ -157,6 +166,11 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
                 exit 2
             fi
             echo "$(fit_flags scores-fc3 | sed 's/nbvscore-fc3/nbvscore-fc3-wide/') --add-train $SCORES_DAGGER" ;;
+        scores-fc3-dagger)  # the policy of the score network's round, fine-tuned on the training part + the round
+            local policy
+            policy=$(scores_dagger_policy)
+            rolled_by "$policy" "$SCORES_DAGGER" scores-dagger
+            echo "$(fit_flags scores-fc3) --add-train $SCORES_DAGGER --init $policy" ;;
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
         # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
         regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
@@ -165,7 +179,7 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
             round=$(dagger_round "$1")
             extra=$(dagger_flags "$round") || exit 2
             echo "$(fit_flags regression-near-best) $extra" ;;
-        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
+        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
            exit 2 ;;
     esac
 }
@@ -267,7 +281,7 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
     dagger) stage_dagger "${2:-1}" ;;
     scores-dagger) stage_scores_dagger ;;
     select) stage_select ;;
@@ -282,6 +296,7 @@ case ${1:-} in
         stage_fit scores-3                            # a second sitting: fit --resume to epoch 2
         stage_scores_dagger                           # rolled by scores-fc3's best snapshot
         stage_fit scores-fc3-wide
+        stage_fit scores-fc3-dagger
         stage_fit regression-near-best
         stage_dagger 1
         stage_fit regression-dagger
@@ -289,5 +304,5 @@ case ${1:-} in
         stage_fit regression-dagger2
         stage_select
         FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
-    *) sed -n '2,30p' "$0" >&2; exit 2 ;;
+    *) sed -n '2,31p' "$0" >&2; exit 2 ;;
 esac
