@@ -484,6 +484,10 @@ def _check_shard(path: Path, entry: dict, by_content: bool = False) -> Problem |
     return None
 
 
+SHOWN_PROBLEMS = 3
+"""How many of a manifest's problems an error names (``nbvdata verify`` lists every one)."""
+
+
 def open_verified(path: str | Path, root: str | Path | None = None) -> Published:
     """The manifest, once its shards are verified; ManifestError listing the problems otherwise.
 
@@ -503,9 +507,11 @@ def open_verified_for(path: str | Path, root: str | Path | None = None,
     problems = [str(problem) for problem in verification.problems
                 if problem.kind != "extra" and problem not in accepted]
     if problems:
+        shown = "; ".join(problems[:SHOWN_PROBLEMS]) + (
+            f"; and {len(problems) - SHOWN_PROBLEMS} more: nbvdata verify {path} lists them all"
+            if len(problems) > SHOWN_PROBLEMS else "")
         raise ManifestError(f"{path}: {plural(len(problems), 'shard')} {'differs' if len(problems) == 1 else 'differ'} "
-                            f"from the published "
-                            f"{verification.published.label} ({'; '.join(problems)}): restore them from a "
+                            f"from the published {verification.published.label} ({shown}): restore them from a "
                             "good copy, or train on the shards themselves instead of the manifest")
     return verification.published, accepted
 

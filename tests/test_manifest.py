@@ -429,6 +429,22 @@ def test_a_grid_network_trains_on_a_version_whose_clouds_alone_differ(clouds, tm
     assert not (tmp_path / "cloud").exists() and not (tmp_path / "labels").exists()
 
 
+def test_a_refusal_names_a_few_changed_shards_and_counts_the_rest(clouds, tmp_path, monkeypatch):
+    """A regeneration that changed every shard is refused in one short line, not one per shard."""
+    import nbvdata.manifest as manifest
+
+    copy = _copy(clouds.parent.parent / "shards", tmp_path / "copy")
+    for path in sorted(copy.glob("*.h5")):
+        _nudged(path, "gains")
+    monkeypatch.setattr(manifest, "SHOWN_PROBLEMS", 1)
+    with pytest.raises(manifest.ManifestError) as refused:
+        manifest.open_verified(clouds, copy)
+    message = str(refused.value)
+    assert message.startswith(f"{clouds}: 2 shards differ from the published clouds 1.0.0 (")
+    assert message.count("content differs in gains") == 1
+    assert f"; and 1 more: nbvdata verify {clouds} lists them all): restore them" in message
+
+
 @pytest.mark.parametrize("older, newer, arrays", [("1.2.0", "1.3.0", {"points"}), ("1.3.0", "1.4.0", {"points"}),
                                                   ("1.4.0", "1.5.0", {"points", "points_count"})])
 def test_train_meshes_versions_differ_in_their_clouds_only(older, newer, arrays):
