@@ -7,9 +7,12 @@ network above a random view?).
 - ``regression_w0``, ``regression_w05``, ``regression_w1``, ``regression_w2``: the released
   regression network's answer d, then the unscanned candidate view v with the highest
   cos(d, v) - W * max over scanned s of cos(v, s) (W = 0: the unscanned view nearest the answer).
+- ``scores_s0``, ``scores_s025``, ``scores_s05``, ``scores_s1``: the released score network's
+  standardised scores plus W times the standardised angular distance to the nearest scan.
 
-Candidate views are the default scene's (500 on the upper hemisphere); the observation's
-``taken`` (V,) marks the scanned ones.
+The first two are the built-in ``farthest`` planner and ``nbvtrain evaluate --spread W`` as
+policies (``nbvdata.views``; they give the same runs); candidate views are the default scene's
+(500 on the upper hemisphere), the observation's ``taken`` (V,) marks the scanned ones.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import functools
 import numpy as np
 
 from nbvdata.config import ViewConfig
-from nbvdata.views import view_sphere
+from nbvdata.views import farthest_view, nearest_scan_cosines, spread_view, view_sphere
 
 
 @functools.cache
@@ -36,29 +39,18 @@ def _predictor():
     return Predictor(released_checkpoint("regression"))
 
 
-def _closeness(taken: np.ndarray) -> np.ndarray:
-    """(V,) the cosine from each candidate view to its nearest scanned view (-1 with none)."""
-    units = _units()
-    scanned = units[np.asarray(taken, dtype=bool)]
-    if not len(scanned):
-        return np.full(len(units), -1.0)
-    return (units @ scanned.T).max(axis=1)
-
-
-def _pick(score: np.ndarray, taken: np.ndarray) -> int:
-    score = np.where(np.asarray(taken, dtype=bool), -np.inf, score)
-    return int(np.argmax(score))
+def _scanned(observation: dict) -> np.ndarray:
+    """(P, 3) unit directions of the scanned candidate views."""
+    return _units()[np.asarray(observation["taken"], dtype=bool)]
 
 
 def farthest(observation: dict) -> int:
-    return _pick(-_closeness(observation["taken"]), observation["taken"])
+    return farthest_view(_units(), _scanned(observation))
 
 
 def _regression(observation: dict, weight: float) -> int:
     (prediction,) = _predictor().predict(observation["grid"])
-    direction = np.asarray(prediction.direction, dtype=np.float64)
-    score = _units() @ direction - weight * _closeness(observation["taken"])
-    return _pick(score, observation["taken"])
+    return spread_view(_units(), _scanned(observation), prediction.direction, weight)
 
 
 regression_w0, regression_w05, regression_w1, regression_w2 = (functools.partial(_regression, weight=w)
@@ -81,8 +73,8 @@ def _scores(observation: dict, weight: float) -> int:
     taken = np.asarray(observation["taken"], dtype=bool)
     free = ~taken
     scores = _score_predictor().raw(observation["grid"], taken)[0]
-    score = standardise(scores, free) + weight * standardise(-_closeness(taken), free)
-    return _pick(score, taken)
+    score = standardise(scores, free) + weight * standardise(-nearest_scan_cosines(_units(), _scanned(observation)), free)
+    return int(np.argmax(np.where(taken, -np.inf, score)))
 
 
 scores_s0, scores_s025, scores_s05, scores_s1 = (functools.partial(_scores, weight=w) for w in (0.0, 0.25, 0.5, 1.0))
