@@ -98,6 +98,11 @@ class Observation:
     poses: tuple[Pose, ...]
     points: np.ndarray | None = None
 
+    @property
+    def positions(self) -> np.ndarray:
+        """(P, 3) float64 the sensor positions of ``poses``, object frame."""
+        return np.array([pose.position for pose in self.poses], dtype=np.float64).reshape(-1, 3)
+
 
 class Planner:
     """Base class. ``privileged`` planners also receive the simulation's state (the oracle);
@@ -172,8 +177,7 @@ class LearnedPlanner(Planner):
 
     def scanned(self, observation: Observation) -> np.ndarray:
         """(V,) bool: the run's candidate views the observation's poses marked (each its nearest)."""
-        positions = np.array([pose.position for pose in observation.poses]).reshape(-1, 3)
-        return scanned_views(positions, self.views.unit_positions)
+        return scanned_views(observation.positions, self.views.unit_positions)
 
     def view_scores(self, observation: Observation, taken: np.ndarray) -> np.ndarray:
         """(V,) the mean of the score networks' scores for the observation's (n, n, n) grid (a point
@@ -207,8 +211,8 @@ class LearnedPlanner(Planner):
             return self.views[self.next_view(observation)]
         (prediction,) = self.predictor.predict(observation.probabilities)
         if self.spread is not None:
-            positions = np.array([pose.position for pose in observation.poses], dtype=np.float64).reshape(-1, 3)
-            return self.views[spread_view(self.views.unit_positions, positions, prediction.direction, self.spread)]
+            return self.views[spread_view(self.views.unit_positions, observation.positions, prediction.direction,
+                                          self.spread)]
         if not self.no_stall:
             return prediction.pose
         units, taken = self.views.unit_positions, self.scanned(observation)
@@ -340,9 +344,7 @@ class FarthestPlanner(Planner):
         self.views = views
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
-        units = self.views.unit_positions
-        positions = np.array([pose.position for pose in observation.poses], dtype=np.float64).reshape(-1, 3)
-        return self.views[farthest_view(units, positions)]
+        return self.views[farthest_view(self.views.unit_positions, observation.positions)]
 
 
 class PolicyPlanner(Planner):
@@ -374,8 +376,7 @@ class PolicyPlanner(Planner):
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         from nbvdata.env import check_view, direction_pose, observation as env_observation
 
-        positions = np.array([pose.position for pose in observation.poses]).reshape(-1, 3)
-        taken = scanned_views(positions, self.views.unit_positions)
+        taken = scanned_views(observation.positions, self.views.unit_positions)
         action = self.policy(env_observation(observation.probabilities, taken))
         returned = f"policy {self.name} returned"
         try:
