@@ -215,10 +215,18 @@ def nearest_scan_cosines(units: np.ndarray, positions: np.ndarray) -> np.ndarray
     P = 0. Summed term by term (no BLAS), so the same on every CPU."""
     units = np.asarray(units, dtype=np.float64)
     nearest = np.full(len(units), -np.inf)
-    for x, y, z in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
-        norm = math.sqrt(x * x + y * y + z * z)
-        nearest = np.maximum(nearest, (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm)
+    for position in np.asarray(positions, dtype=np.float64).reshape(-1, 3):
+        nearest = np.maximum(nearest, _cosines(units, position))
     return nearest
+
+
+def _cosines(units: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """(V,) float64 the cosine between each of ``units`` (V, 3) float64 and ``vector`` (3,) (any
+    length; a zero vector gives zeros), summed term by term in a fixed order (no BLAS, no fused
+    multiply-add), so the same on every CPU."""
+    x, y, z = vector
+    norm = math.sqrt(x * x + y * y + z * z) or 1.0
+    return (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm
 
 
 def farthest_view(units: np.ndarray, positions: np.ndarray) -> int:
@@ -242,9 +250,7 @@ def spread_view(units: np.ndarray, positions: np.ndarray, direction: np.ndarray,
     taken = scanned_views(positions, units)
     if taken.all():
         return 0
-    x, y, z = np.asarray(direction, dtype=np.float64).reshape(3)
-    norm = math.sqrt(x * x + y * y + z * z) or 1.0
-    score = (units[:, 0] * x + units[:, 1] * y + units[:, 2] * z) / norm
+    score = _cosines(units, np.asarray(direction, dtype=np.float64).reshape(3))
     if len(np.asarray(positions).reshape(-1, 3)) and weight:
         score = score - weight * nearest_scan_cosines(units, positions)
     return int(np.argmax(np.where(taken, -np.inf, score)))
