@@ -17,7 +17,9 @@
 #                                                 # (round 1) or regression-daggerN: near-best, started from the
 #                                                 # round's policy, rounds 1..N added. The policy of round N is the
 #                                                 # best snapshot on the validation objects of the run before it
-#                                                 # (regression-near-best, regression-dagger, regression-dagger2...)
+#                                                 # (regression-near-best, regression-dagger, regression-dagger2...);
+#                                                 # fit regression-scans: nbvnet-4-3-scans (told where the sensor
+#                                                 # has been) from round 1's policy widened, on train + round 1
 #   benchmarks/selection.sh scores-dagger         # the released score network's own runs on the training meshes
 #                                                 # (6 each, seed 11), every state labelled exactly: the data
 #                                                 # scores-fc3-wide adds; fit scores-fc3-dagger fine-tunes the
@@ -179,7 +181,13 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
             round=$(dagger_round "$1")
             extra=$(dagger_flags "$round") || exit 2
             echo "$(fit_flags regression-near-best) $extra" ;;
-        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best or regression-dagger[N]" >&2
+        # the same network told where the sensor has been (nbvnet-4-3-scans), started from round 1's
+        # policy widened (its new inputs' weights zero: the same network at first) on the training part + round 1
+        regression-scans)
+            local extra
+            extra=$(dagger_flags 1) || exit 2
+            echo "$(fit_flags regression-near-best | sed 's/nbvnet-4-3 /nbvnet-4-3-scans /') $extra" ;;
+        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N] or regression-scans" >&2
            exit 2 ;;
     esac
 }
@@ -281,7 +289,7 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best or regression-dagger[N]}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N] or regression-scans}" ;;
     dagger) stage_dagger "${2:-1}" ;;
     scores-dagger) stage_scores_dagger ;;
     select) stage_select ;;
@@ -300,9 +308,10 @@ case ${1:-} in
         stage_fit regression-near-best
         stage_dagger 1
         stage_fit regression-dagger
+        stage_fit regression-scans
         stage_dagger 2                                # rolled by regression-dagger's best snapshot
         stage_fit regression-dagger2
         stage_select
         FINAL_SCORES=$(table --top 1 "$VAL"/scores-*-e*) FINAL_REGRESSION=$(best regression) stage_test ;;
-    *) sed -n '2,31p' "$0" >&2; exit 2 ;;
+    *) sed -n '2,/^set -euo/{/^set/!p;}' "$0" >&2; exit 2 ;;
 esac

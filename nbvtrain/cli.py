@@ -75,7 +75,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
 
     checkpoint = args.checkpoint or released_checkpoint("scores")
     predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius, tta=args.tta)
-    taken = None
+    taken, scans = None, None
+    reads_scans = getattr(predictor.model, "reads_scans", False)
     if predictor.inputs == "points":
         grid, source, taken = _cloud_input(args, predictor)
     elif args.grid.suffix == ".npy":
@@ -88,15 +89,18 @@ def cmd_predict(args: argparse.Namespace) -> int:
             if not 0 <= args.index < len(shard):
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
-            if predictor.view_units is not None and shard.has("last_view"):
-                from nbvdata.shards import view_state
+            if (predictor.view_units is not None or reads_scans) and shard.has("last_view"):
+                from nbvtrain.data import load_view_states
 
-                states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
-                taken = states[args.index]
+                state = load_view_states([args.grid], poses="nearest")[args.index]
+                if reads_scans:  # where the sensor has been: the scanned candidate views
+                    scans = shard["view_positions"][state]
+                else:
+                    taken = state
     if args.scanned is not None:
         taken = _scanned(args.scanned, predictor)
     try:
-        predictions = predictor.predict(grid, taken)
+        predictions = predictor.predict(grid, taken, scans)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
     if predictor.inputs == "points" or grid.ndim == 3:  # one cloud or one grid: one answer

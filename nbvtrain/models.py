@@ -3,6 +3,8 @@ the candidate-score family ``nbvscore-*``.
 
 The NBV-nets map a batch of occupancy grids (B, 1, 32, 32, 32), float32 probabilities, to
 (B, 3) unit-ish NBV positions (regression, tanh output) or (B, 14) logits (classification).
+``nbvnet-4-3-scans`` also reads where the sensor has been: (B, K) ``scan_closeness`` of the
+scanned sensor positions to K = 42 fixed directions, joined to the first FC layer's input.
 A score network maps grids and the view state (B, V) bool (which of the V candidate views
 were scanned) to (B, V) scores, one per candidate view (task ``scores``; ``ScoreNet``).
 ``nbvscore-pc`` does the same from the state's partial point cloud (B, N, 3) instead of the grid
@@ -37,13 +39,17 @@ class Architecture:
     """convs: filters per convolution (for a point network: widths of the MLP shared by every
     point); fcs: hidden fully connected widths; outputs: 3, 14, or 0 = one per candidate view (a
     score network, whose convolutions have stride 2, no pooling); inputs: "grid" (B, 1, 32, 32,
-    32) probabilities or "points" (B, N, 3) partial clouds in the object frame, metres."""
+    32) probabilities or "points" (B, N, 3) partial clouds in the object frame, metres; scans:
+    also reads (B, K) ``scan_closeness`` (a regression network); widens: the network whose weights
+    it starts from exactly (``fit --init``), the new inputs' weights zero."""
 
     convs: tuple[int, ...]
     fcs: tuple[int, ...]
     outputs: int
     description: str
     inputs: str = "grid"
+    scans: bool = False
+    widens: str = ""
 
     @property
     def task(self) -> str:
@@ -56,6 +62,12 @@ MODELS: dict[str, Architecture] = {
                                "C(10) P C(12) P C(8) P, FC(1500) FC(500) FC(100) FC(50) FC(3)"),
     "nbvnet-4-3": Architecture((16, 32, 64, 64), (1024, 500), 3,
                                "C(16) P C(32) P C(64) P C(64), FC(1024) FC(500) FC(3)"),
+    # nbvnet-4-3 told where the sensor has been (issue 27's "regression network given the view
+    # state"): fc1 also reads the scans' closeness to 42 fixed directions; from nbvnet-4-3's
+    # weights with zeros for those columns it starts as that network.
+    "nbvnet-4-3-scans": Architecture((16, 32, 64, 64), (1024, 500), 3,
+                                     "C(16) P C(32) P C(64) P C(64), [., scan closeness (42)] FC(1024) FC(500) FC(3)",
+                                     scans=True, widens="nbvnet-4-3"),
     "nbvnet-4-5": Architecture((16, 32, 64, 64), (1500, 500, 100, 50), 3,
                                "C(16) P C(32) P C(64) P C(64), FC(1500) FC(500) FC(100) FC(50) FC(3)"),
     # The earlier NBV-Net (Mendoza et al.): the 3-5 body with 14 class logits. Unlike its published
@@ -100,7 +112,8 @@ def architecture(name: str) -> Architecture:
 
 
 class NBVNet(nn.Module):
-    """(B, 1, 32, 32, 32) grids -> (B, 3) tanh positions or (B, 14) logits."""
+    """(B, 1, 32, 32, 32) grids -> (B, 3) tanh positions or (B, 14) logits; a network that
+    ``reads_scans`` also takes (B, K) ``scan_closeness`` rows (``forward(grids, scans)``)."""
 
     inputs = "grid"
 
@@ -109,7 +122,7 @@ class NBVNet(nn.Module):
         arch = architecture(name)
         names = layer_names(name)
         start = dropout_start_index(dropout_from, names)
-        self.name, self.task = name, arch.task
+        self.name, self.task, self.reads_scans = name, arch.task, arch.scans
         layers: list[nn.Module] = []
         channels = 1
         for i, filters in enumerate(arch.convs):
@@ -122,7 +135,7 @@ class NBVNet(nn.Module):
         self.features = nn.Sequential(*layers)
         side = GRID_SIZE // 2 ** min(POOLED, len(arch.convs))
         self.feature_count = channels * side ** 3
-        layers, width = [nn.Flatten()], self.feature_count
+        layers, width = [nn.Flatten()], self.feature_count + (len(SCAN_DIRECTIONS) if arch.scans else 0)
         for i, units in enumerate(arch.fcs):
             layers += [nn.Linear(width, units), nn.ReLU(inplace=True)]
             if len(arch.convs) + i >= start:
@@ -133,8 +146,17 @@ class NBVNet(nn.Module):
             layers.append(nn.Tanh())
         self.head = nn.Sequential(*layers)
 
-    def forward(self, grids: torch.Tensor) -> torch.Tensor:
-        return self.head(self.features(grids))
+    def forward(self, grids: torch.Tensor, scans: torch.Tensor | None = None) -> torch.Tensor:
+        return self.decide(self.features(grids), scans)
+
+    def decide(self, features: torch.Tensor, scans: torch.Tensor | None = None) -> torch.Tensor:
+        """The head on (B, C, s, s, s) features, joined with (B, K) ``scans`` when it reads them."""
+        if not self.reads_scans:
+            return self.head(features)
+        if scans is None or scans.shape != (len(features), len(SCAN_DIRECTIONS)):
+            raise ValueError(f"{self.name} reads where the sensor has been: give scans=(B, {len(SCAN_DIRECTIONS)}) "
+                             "scan_closeness rows")
+        return self.head[1:](torch.cat([self.head[0](features), scans.to(features.dtype)], dim=1))
 
 
 def dropout_start_index(dropout_from: str, names: list[str]) -> int:
@@ -277,6 +299,55 @@ def quarter_turns(vectors: np.ndarray, turns: int) -> np.ndarray:
     c, s = round(np.cos(turns * np.pi / 2)), round(np.sin(turns * np.pi / 2))
     x, y = vectors[:, 0], vectors[:, 1]
     return np.stack([c * x - s * y, s * x + c * y, vectors[:, 2]], axis=1)
+
+
+def _scan_directions() -> np.ndarray:
+    """(42, 3) float64 unit directions: 8 azimuths (every 45 degrees) at elevations -60, -30, 0,
+    30 and 60 degrees, then the two poles; a quarter turn about z permutes them exactly."""
+    elevation, azimuth = np.meshgrid(np.radians([-60.0, -30.0, 0.0, 30.0, 60.0]), np.arange(8) * (np.pi / 4),
+                                     indexing="ij")
+    rings = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                      np.sin(elevation)], axis=-1).reshape(-1, 3)
+    return np.concatenate([rings, [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]])
+
+
+SCAN_DIRECTIONS = _scan_directions()
+SCAN_WIDTH = 0.1  # closeness exp((cos - 1) / width): 0.26 at 30 degrees, 0.05 at 45
+# (4, K): SCAN_TURNS[t][k] is the direction that t quarter turns take onto direction k, so the
+# closeness of scans turned by t quarter turns is ``closeness[..., SCAN_TURNS[t]]`` (``turn_closeness``)
+SCAN_TURNS = np.stack([np.argmax(quarter_turns(SCAN_DIRECTIONS, -t) @ SCAN_DIRECTIONS.T, axis=1) for t in range(4)])
+
+
+def scan_closeness(positions: np.ndarray) -> np.ndarray:
+    """(K,) float32: for each of the K ``SCAN_DIRECTIONS``, exp((cos - 1) / ``SCAN_WIDTH``) of its
+    angle to the nearest of the scanned sensor positions (S, 3) (object frame, any radius); zeros
+    when S = 0. Cosines summed term by term (no BLAS): the same on every CPU."""
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if not len(positions):
+        return np.zeros(len(SCAN_DIRECTIONS), dtype=np.float32)
+    norms = np.sqrt(positions[:, 0] ** 2 + positions[:, 1] ** 2 + positions[:, 2] ** 2)
+    units = positions / np.where(norms > 0, norms, 1.0)[:, None]
+    cosines = (units[:, None, 0] * SCAN_DIRECTIONS[None, :, 0] + units[:, None, 1] * SCAN_DIRECTIONS[None, :, 1]
+               + units[:, None, 2] * SCAN_DIRECTIONS[None, :, 2])  # (S, K)
+    return np.exp((cosines.max(axis=0) - 1.0) / SCAN_WIDTH).astype(np.float32)
+
+
+def view_state_closeness(taken: np.ndarray, view_units: np.ndarray) -> np.ndarray:
+    """(N, K) float32 ``scan_closeness`` of every view state's scanned views: ``taken`` (N, V) bool,
+    ``view_units`` (V, 3) their unit directions; the same numbers as ``scan_closeness`` of the
+    scanned views' directions, row by row."""
+    per_view = np.stack([scan_closeness(unit) for unit in np.asarray(view_units, dtype=np.float64)])  # (V, K)
+    out = np.zeros((len(taken), len(SCAN_DIRECTIONS)), dtype=np.float32)
+    for start in range(0, len(taken), 1024):
+        rows = np.asarray(taken[start:start + 1024], dtype=bool)
+        out[start:start + 1024] = np.where(rows[:, :, None], per_view[None], 0.0).max(axis=1)
+    return out
+
+
+def turn_closeness(closeness: np.ndarray, turns: np.ndarray) -> np.ndarray:
+    """(B, K) ``scan_closeness`` rows of scans turned by ``turns`` (B,) quarter turns about z
+    (``quarter_turns``): a permutation of each row, exact."""
+    return np.take_along_axis(np.asarray(closeness), SCAN_TURNS[np.asarray(turns) % 4], axis=1)
 
 
 class PointScoreNet(nn.Module):

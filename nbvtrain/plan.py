@@ -268,7 +268,7 @@ class NetworkPlanner:
         self.view_units = predictor.view_units
 
     def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
-        return self.predictor.predict(grid)[0]
+        return self.predictor.predict(grid, scans=taken)[0]
 
 
 class ScorePlanner(NetworkPlanner):

@@ -209,7 +209,7 @@ class LearnedPlanner(Planner):
         task = self.predictor.model.task
         if task == "scores":
             return self.views[self.next_view(observation)]
-        (prediction,) = self.predictor.predict(observation.probabilities)
+        (prediction,) = self.predictor.predict(observation.probabilities, scans=observation.positions)
         if self.spread is not None:
             return self.views[spread_view(self.views.unit_positions, observation.positions, prediction.direction,
                                           self.spread)]

@@ -29,7 +29,8 @@ from nbvdata.config import ConfigError
 from nbvdata.userarrays import GridError, check_grids
 from nbvdata.views import Pose
 from nbvtrain.checkpoint import load_checkpoint, model_from
-from nbvtrain.models import GRID_SIZE, NBVNet, PointScoreNet, ScoreNet, class_positions, quarter_turns
+from nbvtrain.models import (GRID_SIZE, SCAN_DIRECTIONS, NBVNet, PointScoreNet, ScoreNet, class_positions,
+                             quarter_turns, scan_closeness, turn_closeness)
 from nbvtrain.scores import pick
 
 
@@ -91,11 +92,14 @@ class Predictor:
             where = "--radius" if radius is not None else f"the view_radius of {path}: pass --radius"
             raise ConfigError(f"view radius {self.radius}: must be a positive finite number of metres ({where})")
 
-    def raw(self, grids: np.ndarray | list[np.ndarray], taken: np.ndarray | None = None) -> np.ndarray:
+    def raw(self, grids: np.ndarray | list[np.ndarray], taken: np.ndarray | None = None,
+            scans: np.ndarray | list[np.ndarray] | None = None) -> np.ndarray:
         """The network's own output for (B, n, n, n) or (n, n, n) probabilities: (B, 3) tanh
         positions, (B, 14) class logits or (B, V) candidate scores (``taken``: (V,) or (B, V) bool
         scanned views, default none); with ``tta`` the mean of the four quarter turns' outputs,
-        turned back. GridError (a ValueError) for a bad grid (``check_grids``).
+        turned back. GridError (a ValueError) for a bad grid (``check_grids``). A network that reads
+        where the sensor has been (``nbvnet-4-3-scans``) takes ``scans``: the (S, 3) sensor positions
+        scanned so far (object frame) for every grid, or a list of B of them; None: none yet.
 
         A point network (``inputs`` "points") takes clouds instead: one (M, 3) array or a list of
         B, object frame, metres, any M >= 1 - every point scanned, reduced here to the checkpoint's
@@ -112,7 +116,11 @@ class Predictor:
         grids = torch.from_numpy(grids).to(self.device).unsqueeze(1)
         with torch.inference_mode():
             if self.model.task != "scores":
-                outputs = self.model.head(self._features(grids)).cpu().numpy().astype(np.float64)
+                closeness = self.closeness(scans, batch)
+                if closeness is not None:  # (len(turns) B, K): the scans turned as their grids
+                    closeness = torch.from_numpy(np.concatenate([turn_closeness(closeness, np.full(batch, turn))
+                                                                 for turn in turns])).to(self.device)
+                outputs = self.model.decide(self._features(grids), closeness).cpu().numpy().astype(np.float64)
                 if not self.tta:
                     return outputs
                 outputs = outputs.reshape(len(turns), batch, -1)  # regression: positions turned back
@@ -129,6 +137,18 @@ class Predictor:
             raise GridError(f"no point cloud given: {self.name} reads one (M, 3) cloud per state")
         return np.stack([reduce_cloud(check_cloud(cloud), self.points)[0] for cloud in clouds])
 
+    def closeness(self, scans: np.ndarray | list[np.ndarray] | None, batch: int) -> np.ndarray | None:
+        """(B, K) ``scan_closeness`` of ``scans`` (see ``raw``) for a network that reads them, else None."""
+        if not getattr(self.model, "reads_scans", False):
+            return None
+        if scans is None:
+            return np.zeros((batch, len(SCAN_DIRECTIONS)), dtype=np.float32)
+        each = [scans] * batch if isinstance(scans, np.ndarray) and scans.ndim <= 2 else list(scans)
+        if len(each) != batch or any(np.size(positions) and np.shape(positions)[-1] != 3 for positions in each):
+            raise GridError(f"scans: give the (S, 3) sensor positions scanned so far, or a list of {batch} of them "
+                            f"(one per grid), for {self.name}")
+        return np.stack([scan_closeness(positions) for positions in each])
+
     def taken(self, taken: np.ndarray | None, batch: int) -> np.ndarray:
         """(B, V) bool view states of a score network from (V,), (B, V) or None (nothing scanned)."""
         views = len(self.view_units)
@@ -139,25 +159,27 @@ class Predictor:
                             f"flag per candidate view of {self.name}")
         return np.array(state)  # a writable copy (torch.from_numpy wants one)
 
-    def outputs(self, grids: np.ndarray, taken: np.ndarray | None = None) -> np.ndarray:
+    def outputs(self, grids: np.ndarray, taken: np.ndarray | None = None,
+                scans: np.ndarray | list[np.ndarray] | None = None) -> np.ndarray:
         """(B, n, n, n) or (n, n, n) probabilities (a point network: clouds, see ``raw``) -> (B, 3)
         network positions (unit-sphere scale):
         the regression output, the chosen class's view, or the unscanned candidate view (``taken``,
         see ``raw``) with the highest score. GridError (a ValueError) for a bad grid."""
-        raw = self.raw(grids, taken)
+        raw = self.raw(grids, taken, scans)
         if self.model.task == "classification":
             return class_positions()[raw.argmax(axis=1)]
         if self.model.task == "scores":
             return self.view_units[pick(raw, self.taken(taken, len(raw)))]
         return raw
 
-    def predict(self, grids: np.ndarray, taken: np.ndarray | None = None) -> list[NBVPrediction]:
+    def predict(self, grids: np.ndarray, taken: np.ndarray | None = None,
+                scans: np.ndarray | list[np.ndarray] | None = None) -> list[NBVPrediction]:
         """(B, n, n, n) or (n, n, n) grids, authors' encoding (0.5 = unknown; a point network: clouds,
         see ``raw``) -> B predictions
-        (``taken``: a score network's scanned views, see ``raw``). GridError (a ValueError) for a
-        bad grid (see ``check_grids``)."""
+        (``taken``: a score network's scanned views, ``scans`` the scanned sensor positions, see
+        ``raw``). GridError (a ValueError) for a bad grid (see ``check_grids``)."""
         predictions = []
-        for raw in self.outputs(grids, taken):
+        for raw in self.outputs(grids, taken, scans):
             norm = np.linalg.norm(raw)
             direction = raw / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
             pose = Pose.look_at(direction * self.radius * self.k)

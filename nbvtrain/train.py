@@ -48,7 +48,8 @@ from nbvdata.shards import CLOUDS, ShardError
 from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
                            split_indices, to_grids)
 from nbvtrain.metrics import evaluate, format_ratio
-from nbvtrain.models import NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count
+from nbvtrain.models import (NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count,
+                             turn_closeness, view_state_closeness)
 from nbvtrain.scores import near_best_loss, pick, score_loss
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
@@ -177,6 +178,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
                        clouds=config.model if points else None, grids=not points)
     try:
         taken = _view_states(data, config)
+        scans = None if taken is None or not architecture(config.model).scans else view_state_closeness(
+            taken, data.view_units)
         if resumed is None:
             torch.manual_seed(config.seed)
             model = build_model(config.model, config.dropout_from, config.dropout, views=data.view_units)
@@ -217,7 +220,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
         log(f"{config.model}: {parameter_count(model):,} parameters on {device}; {len(train_idx)} training and "
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
             f"{plural(len(data.paths), 'shard')}")
-        _train(model, optimizer, data, taken, train_idx, val_idx, config, device, out, history, progress, log)
+        _train(model, optimizer, data, taken, scans, train_idx, val_idx, config, device, out, history, progress,
+               log)
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
         data.close()
@@ -238,10 +242,15 @@ def _restored(config: TrainConfig, checkpoint: dict, out: Path,
 def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
     """(N, V) bool view states for a score network or the near-best regression loss (None for the
     others); ShardError when the shards lack what the network learns from."""
-    task = architecture(config.model).task
-    if not (task == "scores" or (task == "regression" and config.regression_loss == "near-best")):
+    arch = architecture(config.model)
+    task = arch.task
+    if not (task == "scores" or arch.scans or (task == "regression" and config.regression_loss == "near-best")):
         return None
     if data.gains is None:
+        if arch.scans:
+            raise ShardError(f"{config.model} reads where the sensor has been, from each state's view state over one "
+                             "common view set, which these shards do not all hold (imported data has none): train it "
+                             "on shards written by nbvdata generate, or use nbvnet-4-3")
         learns = config.model if task == "scores" else f"{config.model} with regression_loss=near-best"
         raise ShardError(f"{learns} learns from every candidate view's gain and overlap, and these shards do not all "
                          "hold them for one common view set (imported data has none): train it on shards written by "
@@ -351,7 +360,7 @@ def _init_checkpoint(config: TrainConfig) -> dict:
     """The checkpoint ``config.init`` names, checked to hold ``config.model``, and its sha256."""
     path = Path(config.init)
     state = load_checkpoint(path, "init= (--init) takes a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
-    if state["model"] != config.model:
+    if state["model"] not in (config.model, architecture(config.model).widens):
         raise ConfigError(f"--init {path}: a {state['model']} checkpoint, and this run trains {config.model}: pass "
                           f"--model {state['model']}, or a checkpoint of {config.model}")
     return state | {"sha256": sha256_file(path)}
@@ -371,7 +380,23 @@ def _start_from(model: NBVNet | ScoreNet, init: dict, path: str, data: ShardSet)
                                    or not np.allclose(units.double().numpy(), data.view_units, atol=1e-9)):
         raise ConfigError(f"--init {path}: scores other candidate views than these shards': start from a checkpoint "
                           "trained on this view set, or without --init")
-    restore(model, init["state_dict"], Path(path), "pass a checkpoint of the same network and --dropout-from")
+    weights = init["state_dict"]
+    if init["model"] != model.name:  # the network it widens: the new inputs' weights start at zero
+        weights = widened(weights, model.state_dict())
+    restore(model, weights, Path(path), "pass a checkpoint of the same network and --dropout-from")
+
+
+def widened(weights: dict, target: dict) -> dict:
+    """``weights`` with each 2-D weight that ``target`` holds with more input columns padded with
+    zero columns on the right (the inputs a widened network adds): the same function until they
+    are trained."""
+    out = dict(weights)
+    for key, value in weights.items():
+        wanted = target.get(key)
+        if (wanted is not None and value.ndim == 2 and wanted.ndim == 2 and wanted.shape[0] == value.shape[0]
+                and wanted.shape[1] > value.shape[1]):
+            out[key] = torch.cat([value, value.new_zeros(value.shape[0], wanted.shape[1] - value.shape[1])], dim=1)
+    return out
 
 
 def _check_run(out: Path, config: TrainConfig, resume: bool) -> dict | None:
@@ -404,6 +429,7 @@ def _start(out: Path, config: TrainConfig) -> None:
 
 
 def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet, taken: np.ndarray | None,
+           scans: np.ndarray | None,
            train_idx: np.ndarray, val_idx: np.ndarray, config: TrainConfig, device: torch.device, out: Path,
            history: list[dict], progress: bool, log: Callable[[str], None]) -> None:
     palette = torch.from_numpy(data.palette).to(device)
@@ -427,13 +453,13 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                 batches = [(order[i:i + config.batch_size], turns[i:i + config.batch_size])
                            for i in range(0, len(order), config.batch_size)]
                 bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
-                total = _train_epoch(model, optimizer, data, taken, batches, palette, classes, loss_fn, config,
+                total = _train_epoch(model, optimizer, data, taken, scans, batches, palette, classes, loss_fn, config,
                                      device, bar, stop)
                 if bar is not None:
                     bar.close()
                 train_seconds = time.perf_counter() - started
                 row = {"epoch": epoch, "train_loss": total / len(order),
-                       **_validate(model, data, taken, val_idx, palette, classes, loss_fn, config, device),
+                       **_validate(model, data, taken, scans, val_idx, palette, classes, loss_fn, config, device),
                        "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds,
                        "machine": machine(device)}
                 history.append(row)
@@ -454,7 +480,8 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
 
 
 def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet,
-                 taken: np.ndarray | None, batches: list[tuple[np.ndarray, np.ndarray]], palette: torch.Tensor,
+                 taken: np.ndarray | None, scans: np.ndarray | None, batches: list[tuple[np.ndarray, np.ndarray]],
+                 palette: torch.Tensor,
                  classes: torch.Tensor, loss_fn: nn.Module, config: TrainConfig, device: torch.device, bar,
                  stop: _StopOnCtrlC) -> float:
     """One pass over ``batches`` of (indices, quarter turns); the summed loss (times batch sizes).
@@ -467,7 +494,7 @@ def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, dat
             if model.task == "scores":
                 loss = _score_loss(model, grids, data, taken, index, config, device, turned)[0]
             elif model.task == "regression":
-                output = model(grids)
+                output = model(grids, _scan_inputs(scans, index, turned, device))
                 loss = _regression_loss(output, targets, data, taken, index, turned, loss_fn, config)
             else:
                 output = model(grids)
@@ -514,6 +541,15 @@ def _regression_loss(output: torch.Tensor, targets: np.ndarray, data: ShardSet, 
     units = torch.from_numpy(data.view_units).to(device, torch.float32)
     return near_best_loss(output, labels, gains, valid, scanned, units, torch.from_numpy(turns).to(device),
                           config.near_best)
+
+
+def _scan_inputs(scans: np.ndarray | None, index: np.ndarray, turns: np.ndarray,
+                 device: torch.device) -> torch.Tensor | None:
+    """(B, K) ``scan_closeness`` rows of the samples ``index`` turned by ``turns`` as their grids
+    (``turn_closeness``), or None for a network that reads no scans."""
+    if scans is None:
+        return None
+    return torch.from_numpy(turn_closeness(scans[index], turns)).to(device)
 
 
 def _epoch_seed(seed: int, epoch: int) -> int:
@@ -575,7 +611,8 @@ def _labels(targets: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
     return torch.argmax(targets @ classes.T, dim=1)
 
 
-def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None, val_idx: np.ndarray,
+def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None, scans: np.ndarray | None,
+              val_idx: np.ndarray,
               palette: torch.Tensor, classes: torch.Tensor, loss_fn: nn.Module, config: TrainConfig,
               device: torch.device) -> dict[str, float]:
     """Validation loss and ``nbvtrain.metrics.evaluate``'s scores; a score network's prediction
@@ -593,9 +630,9 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
                 loss += batch_loss.item() * len(index)
                 predictions.append(data.view_units[pick(scores, scanned)])
                 continue
-            output = model(grids)
+            no_turns = np.zeros(len(index), dtype=np.int64)
+            output = model(grids) if scans is None else model(grids, _scan_inputs(scans, index, no_turns, device))
             if model.task == "regression":
-                no_turns = np.zeros(len(index), dtype=np.int64)
                 loss += _regression_loss(output, data.targets[index], data, taken, index, no_turns, loss_fn,
                                          config).item() * len(index)
                 predictions.append(output.float().cpu().numpy())

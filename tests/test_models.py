@@ -18,7 +18,12 @@ def test_every_model_maps_grids_to_its_output(name):  # score networks: tests/te
     model = build_model(name).eval()
     grids = torch.rand(3, 1, 32, 32, 32)
     with torch.no_grad():
-        output = model(grids)
+        if MODELS[name].scans:  # where the sensor has been: (B, 42) closeness rows
+            with pytest.raises(ValueError, match="scans=\\(B, 42\\)"):
+                model(grids)
+            output = model(grids, torch.rand(3, 42))
+        else:
+            output = model(grids)
     outputs = 3 if MODELS[name].task == "regression" else 14
     assert output.shape == (3, outputs) and torch.isfinite(output).all()
     if outputs == 3:

@@ -400,3 +400,58 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
     with pytest.raises(SystemExit) as stopped:
         main(["fit", str(shards), "--near-best", "0", "--out", str(tmp_path / "zero"), *FAST])
     assert stopped.value.code == 2 and "--near-best: must be a number in (0, 1]" in capsys.readouterr().err
+
+
+def test_scan_closeness_turns_with_the_scans_and_matches_the_view_states(rng):
+    from nbvtrain.models import SCAN_DIRECTIONS, quarter_turns, scan_closeness, turn_closeness, view_state_closeness
+    positions = rng.normal(size=(4, 3)) * 0.4
+    closeness = scan_closeness(positions)
+    assert closeness.shape == (len(SCAN_DIRECTIONS),) and closeness.dtype == np.float32
+    assert np.all((closeness > 0) & (closeness <= 1))
+    assert not scan_closeness(np.zeros((0, 3))).any()  # nothing scanned
+    assert scan_closeness(SCAN_DIRECTIONS[7] * 2.5)[7] == 1.0  # a scan on a direction, at any radius
+    for turns in range(4):  # scans turned as their grid: the same numbers, permuted
+        turned = turn_closeness(closeness[None], np.array([turns]))[0]
+        np.testing.assert_allclose(scan_closeness(quarter_turns(positions, turns)), turned, atol=1e-6)
+        assert (turns == 0) == np.array_equal(turned, closeness)
+    units = rng.normal(size=(30, 3))
+    units /= np.linalg.norm(units, axis=1, keepdims=True)
+    taken = rng.random((2000, 30)) < 0.2
+    rows = view_state_closeness(taken, units)
+    for i in (0, 1, 1500, 1999):  # across a chunk boundary
+        assert np.array_equal(rows[i], scan_closeness(units[taken[i]]))
+
+
+def test_a_network_told_the_scans_starts_as_the_one_it_widens_and_reads_them(shards, tmp_path, capsys):
+    plain, told = tmp_path / "plain", tmp_path / "told"
+    near = ["--regression-loss", "near-best", "--augment", "--batch-size", "16", "--threads", "1", "--no-progress"]
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(plain), "--model", "nbvnet-4-3", *near]) == 0
+    start = torch.load(plain / "best.pt", weights_only=True)
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(told), "--model", "nbvnet-4-3-scans",
+                 "--init", str(plain / "best.pt"), "--lr", "1e-9", *near]) == 0
+    after = torch.load(told / "best.pt", weights_only=True)["state_dict"]
+    fc1 = after["head.1.weight"]
+    assert fc1.shape[1] == start["state_dict"]["head.1.weight"].shape[1] + 42
+    assert fc1[:, -42:].abs().max() < 1e-6  # zero columns, moved by at most lr per step
+    grid = np.full((32, 32, 32), 0.5, dtype=np.float32)
+    grid[12:20, 12:20, 12:20] = 0.9
+    scans = np.array([[0.4, 0.0, 0.0], [0.0, 0.0, 0.4]])
+    widened = Predictor(told / "best.pt")
+    np.testing.assert_allclose(widened.raw(grid, scans=scans), Predictor(plain / "best.pt").raw(grid), atol=1e-4)
+    # the scans enter the answer; averaged over quarter turns, grid and scans turned together turn it
+    averaged = Predictor(told / "best.pt", tta=True)
+    with torch.no_grad():
+        averaged.model.head[1].weight[:, -42:].normal_(0, 0.3, generator=torch.Generator().manual_seed(0))
+    assert not np.allclose(averaged.raw(grid, scans=scans), averaged.raw(grid, scans=scans[:1]), atol=1e-3)
+    grid[14:18, 20:24, 14:24] = 0.1  # no longer symmetric
+    turned = np.ascontiguousarray(np.rot90(grid, 1, axes=(0, 1)))
+    from nbvtrain.models import quarter_turns
+    answer = averaged.raw(grid, scans=scans)
+    np.testing.assert_allclose(averaged.raw(turned, scans=quarter_turns(scans, 1)), quarter_turns(answer, 1),
+                               atol=1e-5)
+    assert not np.allclose(averaged.raw(turned, scans=scans), quarter_turns(answer, 1), atol=1e-3)
+    # a network that reads no scans ignores them; another network than the one widened is refused
+    assert np.array_equal(Predictor(plain / "best.pt").raw(grid, scans=scans), Predictor(plain / "best.pt").raw(grid))
+    capsys.readouterr()
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(tmp_path / "no"), "--model", "nbvnet-4-5", "--init", str(plain / "best.pt"), *near]) == 2
+    assert "a nbvnet-4-3 checkpoint, and this run trains nbvnet-4-5" in capsys.readouterr().err
