@@ -162,7 +162,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     config = load_config(SimConfig, args.config, args.overrides)
     result = plan(parse_vector(args.center, "--center"), scans=args.scans, octomap=args.octomap, size=args.size,
                   up=args.up, checkpoint=args.checkpoint, config=config, max_range=args.max_range, device=args.device,
-                  tta=args.tta)
+                  tta=args.tta, spread=args.spread)
     answer = result.to_dict()
     if result.octomap is not None and not result.octomap["exact"]:
         print(f"nbvtrain plan: note: the map's voxels ({result.octomap['resolution']:g} m) are not the grid's "
@@ -432,6 +432,9 @@ def build_parser() -> Parser:
     plan.add_argument("--png", type=Path, help="write a picture of that grid with the scans and the chosen view")
     plan.add_argument("--tta", action="store_true", help="quarter-turn test-time averaging (exact for regression "
                       "networks and nbvscore-3; refused for the others)")
+    plan.add_argument("--spread", type=non_negative_float, metavar="W", help="with --scans, a regression or "
+                      "classification network: the candidate view with the highest cos(answer, view) - W cos(view, its "
+                      "nearest scan), as nbvtrain evaluate --spread (off: the network's answer as it is)")
     plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
     plan.set_defaults(func=cmd_plan)
 

@@ -27,6 +27,7 @@ size, the grid's corner on a key boundary, axes aligned) this is exact, voxel fo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -38,7 +39,7 @@ from nbvdata.cloud import ScannedCloud
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
-from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, view_sphere
+from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, spread_view, view_sphere
 from nbvtrain.predict import NBVPrediction, Predictor, candidate_fields
 from nbvtrain.release import released_checkpoint
 from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
@@ -370,17 +371,25 @@ class PlanResult:
 def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | Path | None = None,
          size: float | None = None, up: str | np.ndarray = "z", checkpoint: str | Path | None = None,
          config: SimConfig | None = None, max_range: float | None = None, device: str = "cpu",
-         planner: GridPlanner | None = None, tta: bool = False) -> PlanResult:
+         planner: GridPlanner | None = None, tta: bool = False, spread: float | None = None) -> PlanResult:
     """The next-best-view for the object at ``center`` (world frame) from a scans file or an
     OctoMap file (exactly one), with a checkpoint's network (None: the released model; ``tta``:
     quarter-turn averaging, see ``load_planner``) or a ready ``planner``. ``config``: the training
-    data's scene (None: the default scene). PlanError,
+    data's scene (None: the default scene). ``spread`` W: a regression or classification network's
+    answer spread away from the scans, as ``nbvtrain evaluate --spread W`` (the candidate view of
+    the scene's view sphere with the highest cos(answer, v) - W cos(v, its nearest scan),
+    ``nbvdata.views.spread_view``); needs scans. PlanError,
     SensorDataError or CheckpointError, one line each, for unusable input."""
     config = config or SimConfig()
     if (scans is None) == (octomap is None):
         raise PlanError("give either scans (--scans FILE.yaml) or an OctoMap (--octomap MAP.bt), exactly one")
     if max_range is not None and octomap is not None:
         raise PlanError("--max-range applies to --scans only: an OctoMap's scans were integrated already")
+    if spread is not None and scans is None:
+        raise PlanError("--spread spreads the answer away from the scans' sensor positions, which an OctoMap does not "
+                        "hold: give --scans, or drop --spread")
+    if spread is not None and not (math.isfinite(spread) and spread >= 0):
+        raise PlanError(f"--spread {spread}: must be a finite weight >= 0")
     if max_range is not None and not max_range > 0:
         raise PlanError(f"--max-range {max_range}: must be > 0 metres (beyond it a point only carves free space)")
     frame = object_frame(center, size, up, config)
@@ -406,9 +415,19 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
     if abs(planner.radius - config.views.radius) > 1e-3 * config.views.radius:
         raise PlanError(f"the network was trained with views at {planner.radius:g} m, the scene config has "
                         f"views.radius {config.views.radius:g} m: pass the training data's scene (--config)")
+    if spread is not None and planner.view_units is not None:
+        raise PlanError(f"--spread: {planner.name} scores candidate views and reads the scans already: drop --spread "
+                        "(it spreads a regression or classification network's answer)")
     prediction = planner.next_view(grid, taken, cloud)
+    if spread is None:
+        candidate = candidate_fields(planner.view_units, prediction.direction, scanned_state(taken, planner.view_units))
+    else:
+        views = view_sphere(config.views)
+        view = spread_view(views.unit_positions, taken, prediction.direction, spread)
+        prediction = NBVPrediction(prediction.raw, views.unit_positions[view], views[view])
+        candidate = {"view": view, "spread": spread,
+                     "scanned": np.flatnonzero(scanned_state(taken, views.unit_positions)).tolist()}
     world = frame.pose_to_world(prediction.pose)
-    candidate = candidate_fields(planner.view_units, prediction.direction, scanned_state(taken, planner.view_units))
     return PlanResult(world, prediction.pose, np.asarray(prediction.raw), frame, grid, config, planner, source,
                       taken, reach, octomap_info, candidate)
 

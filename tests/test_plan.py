@@ -484,3 +484,46 @@ def test_the_frame_maps_there_and_back(rng):
     with pytest.raises(PlanError, match="zero vector"):
         up_rotation("0,0,0")
     assert issubclass(SensorDataError, ValueError)
+
+
+def test_spread_takes_the_unscanned_view_the_evaluations_rule_takes(scene, checkpoint, tmp_path, capsys):
+    """``--spread W`` answers what ``nbvtrain evaluate --spread W`` would: ``spread_view`` of the
+    network's answer on the scene's candidate views, never a view the scans took; a large W is the
+    view farthest from the scans."""
+    from nbvdata.views import farthest_view, spread_view
+    scans, poses, _ = scene
+    scans_file = _write_scans(tmp_path / "robot", scans, poses)
+    argv = ["--scans", scans_file, "--center", "0,0,0", "--checkpoint", checkpoint]
+    plain = _plan(capsys, *argv)
+    views = view_sphere(SimConfig().views)
+    positions = np.array([pose.position for pose in poses])
+    for weight in (0.0, 2.0, 1e6):
+        answer = _plan(capsys, *argv, "--spread", weight, "--png", tmp_path / "spread.png")
+        assert answer["network_output"] == plain["network_output"] and answer["spread"] == weight
+        assert sorted(answer["scanned"]) == sorted(VIEWS) and answer["view"] not in VIEWS
+        assert answer["view"] == spread_view(views.unit_positions, positions, np.array(plain["network_output"]), weight)
+        np.testing.assert_allclose(answer["position"], views[answer["view"]].position, atol=1e-12)
+    assert answer["view"] == farthest_view(views.unit_positions, positions)
+    assert "view" not in plain and plain["position"] != answer["position"]
+    # an OctoMap holds no scan positions; a score network reads the scans already
+    bt = _tree(tmp_path, np.array([[0.02, 0.0, 0.0]]), [0.2, 0.0, 0.0])
+    assert main(["plan", "--octomap", str(bt), "--center", "0,0,0", "--spread", "1"]) == 2
+    _one_line_error(capsys, "--spread", "give --scans")
+    assert main(["plan", "--scans", str(scans_file), "--center", "0,0,0", "--spread", "1"]) == 2
+    _one_line_error(capsys, "--spread: nbvscore-fc3 scores candidate views", "drop --spread")
+    with pytest.raises(SystemExit):
+        main(["plan", *map(str, argv), "--spread=-1"])
+    _one_line_error(capsys, "argument --spread")
+
+
+def test_a_network_told_the_scans_is_handed_the_scans_sensor_positions(scene, tmp_path, capsys):
+    from nbvtrain.predict import Predictor
+    scans, poses, expected = scene
+    path = _checkpoint(tmp_path / "scans.pt", "nbvnet-4-3-scans")
+    answer = _plan(capsys, "--scans", _write_scans(tmp_path / "robot", scans, poses), "--center", "0,0,0",
+                   "--checkpoint", path)
+    predictor = Predictor(path)
+    positions = np.array([pose.position for pose in poses])
+    told, blind = predictor.raw(expected, scans=positions)[0], predictor.raw(expected)[0]
+    np.testing.assert_allclose(answer["network_output"], told, atol=1e-6)
+    assert not np.allclose(told, blind, atol=1e-4)
