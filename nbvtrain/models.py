@@ -321,7 +321,7 @@ SCAN_TURNS = np.stack([np.argmax(quarter_turns(SCAN_DIRECTIONS, -t) @ SCAN_DIREC
 def scan_closeness(positions: np.ndarray) -> np.ndarray:
     """(K,) float32: for each of the K ``SCAN_DIRECTIONS``, exp((cos - 1) / ``SCAN_WIDTH``) of its
     angle to the nearest of the scanned sensor positions (S, 3) (object frame, any radius); zeros
-    when S = 0. Cosines summed term by term (no BLAS): the same on every CPU."""
+    when S = 0. The cosines are summed term by term (no BLAS)."""
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     if not len(positions):
         return np.zeros(len(SCAN_DIRECTIONS), dtype=np.float32)
