@@ -31,6 +31,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from nbvdata.views import nearest_scan_cosines
+
 GRID_SIZE = 32
 
 
@@ -320,16 +322,10 @@ SCAN_TURNS = np.stack([np.argmax(quarter_turns(SCAN_DIRECTIONS, -t) @ SCAN_DIREC
 
 def scan_closeness(positions: np.ndarray) -> np.ndarray:
     """(K,) float32: for each of the K ``SCAN_DIRECTIONS``, exp((cos - 1) / ``SCAN_WIDTH``) of its
-    angle to the nearest of the scanned sensor positions (S, 3) (object frame, any radius); zeros
-    when S = 0. The cosines are summed term by term (no BLAS)."""
-    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    if not len(positions):
-        return np.zeros(len(SCAN_DIRECTIONS), dtype=np.float32)
-    norms = np.sqrt(positions[:, 0] ** 2 + positions[:, 1] ** 2 + positions[:, 2] ** 2)
-    units = positions / np.where(norms > 0, norms, 1.0)[:, None]
-    cosines = (units[:, None, 0] * SCAN_DIRECTIONS[None, :, 0] + units[:, None, 1] * SCAN_DIRECTIONS[None, :, 1]
-               + units[:, None, 2] * SCAN_DIRECTIONS[None, :, 2])  # (S, K)
-    return np.exp((cosines.max(axis=0) - 1.0) / SCAN_WIDTH).astype(np.float32)
+    angle to the nearest of the scanned sensor positions (S, 3) (object frame, any radius;
+    ``nbvdata.views.nearest_scan_cosines``); zeros when S = 0."""
+    with np.errstate(invalid="ignore"):  # S = 0: exp(-inf) = 0
+        return np.exp((nearest_scan_cosines(SCAN_DIRECTIONS, positions) - 1.0) / SCAN_WIDTH).astype(np.float32)
 
 
 def view_state_closeness(taken: np.ndarray, view_units: np.ndarray) -> np.ndarray:
