@@ -240,8 +240,8 @@ def _restored(config: TrainConfig, checkpoint: dict, out: Path,
 
 
 def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
-    """(N, V) bool view states for a score network or the near-best regression loss (None for the
-    others); ShardError when the shards lack what the network learns from."""
+    """(N, V) bool view states for a score network, a network that reads the scans or the near-best
+    regression loss (None for the others); ShardError when the shards lack what the network learns from."""
     arch = architecture(config.model)
     task = arch.task
     if not (task == "scores" or arch.scans or (task == "regression" and config.regression_loss == "near-best")):
@@ -631,7 +631,7 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
                 predictions.append(data.view_units[pick(scores, scanned)])
                 continue
             no_turns = np.zeros(len(index), dtype=np.int64)
-            output = model(grids) if scans is None else model(grids, _scan_inputs(scans, index, no_turns, device))
+            output = model(grids, _scan_inputs(scans, index, no_turns, device))
             if model.task == "regression":
                 loss += _regression_loss(output, data.targets[index], data, taken, index, no_turns, loss_fn,
                                          config).item() * len(index)
