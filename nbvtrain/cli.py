@@ -99,14 +99,23 @@ def cmd_predict(args: argparse.Namespace) -> int:
                     taken = state
     if args.scanned is not None:
         taken = _scanned(args.scanned, predictor)
+    if args.scanned_at is not None:
+        if not reads_scans:
+            raise ConfigError(f"--scanned-at: {predictor.name} reads no sensor positions (only nbvnet-4-3-scans "
+                              "does); leave the flag out")
+        scans = _positions(args.scanned_at)
+    elif reads_scans and scans is None:
+        raise ConfigError(f"{source}: {predictor.name} reads where the sensor has been: pass --scanned-at "
+                          "'x,y,z;x,y,z' (sensor positions, object frame; 'none' when nothing was scanned); a shard "
+                          "sample of a run gives them itself")
     try:
         predictions = predictor.predict(grid, taken, scans)
     except GridError as error:
         raise ShardError(f"{source}: {error}") from None
     if predictor.inputs == "points" or grid.ndim == 3:  # one cloud or one grid: one answer
-        answer = prediction_dict(predictions[0], predictor, source, taken)
+        answer = prediction_dict(predictions[0], predictor, source, taken, scans)
     else:  # (B, 32, 32, 32): a list of B answers, in order
-        answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken)
+        answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken, scans)
                   for index, prediction in enumerate(predictions)]
     print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
@@ -133,6 +142,20 @@ def _cloud_input(args: argparse.Namespace, predictor) -> tuple[np.ndarray, str, 
 
         states = view_state(shard["run"], shard["step"], shard["last_view"], len(shard["view_positions"]))
         return cloud, f"{args.grid}[{args.index}]", states[args.index]
+
+
+def _positions(text: str) -> np.ndarray:
+    """--scanned-at 'x,y,z;x,y,z' (or 'none') -> (S, 3) float64 sensor positions."""
+    if text.strip().lower() == "none":
+        return np.zeros((0, 3))
+    try:
+        rows = [[float(value) for value in part.split(",")] for part in text.replace(" ", "").split(";") if part]
+    except ValueError:
+        rows = []
+    if not rows or any(len(row) != 3 for row in rows) or not np.isfinite(rows).all():
+        raise ConfigError(f"--scanned-at {text!r}: give the sensor positions as x,y,z;x,y,z (object frame, metres; "
+                          "only their directions from the object count), or 'none'")
+    return np.array(rows)
 
 
 def _scanned(text: str, predictor) -> np.ndarray:
@@ -393,6 +416,9 @@ def build_parser() -> Parser:
                          f"released score network, {released['scores']})")
     predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
                          "from the shard's run for a shard sample, none for a .npy grid)")
+    predict.add_argument("--scanned-at", metavar="'X,Y,Z;...'", help="nbvnet-4-3-scans: the sensor positions "
+                         "scanned so far, object frame, e.g. '0.4,0,0;0,0,0.4', or 'none' (required for a .npy grid; "
+                         "default for a shard sample: its run's scanned views)")
     predict.add_argument("--k", type=positive_float, default=1.0, help="scale of the position beyond the view sphere "
                          "(paper: 2.5 for its 1 m robot scene)")
     predict.add_argument("--radius", type=positive_float, help="view sphere radius, metres (default: the training "

@@ -248,11 +248,14 @@ def _run_mkldnn(layers: list[Callable[[torch.Tensor], torch.Tensor]], grids: tor
 
 
 def prediction_dict(prediction: NBVPrediction, predictor: Predictor, source: str,
-                    taken: np.ndarray | None = None) -> dict:
+                    taken: np.ndarray | None = None, scans: np.ndarray | None = None) -> dict:
     """The answer ``nbvtrain predict`` prints as JSON for one grid; for a score network also the
-    chosen candidate ``view`` and the ``scanned`` views it was told of (``candidate_fields``);
+    chosen candidate ``view`` and the ``scanned`` views it was told of (``candidate_fields``); for
+    a network that reads the sensor positions the (S, 3) ``scans`` it was given (``scanned_at``);
     ``tta``: true with quarter-turn averaging."""
     extra = candidate_fields(predictor.view_units, prediction.direction, taken)
+    if scans is not None and getattr(predictor.model, "reads_scans", False):
+        extra["scanned_at"] = np.asarray(scans, dtype=float).reshape(-1, 3).tolist()
     if predictor.tta:
         extra["tta"] = True
     return {"source": source, "checkpoint": str(predictor.path), "model": predictor.name, "epoch": predictor.epoch,

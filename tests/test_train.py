@@ -452,6 +452,29 @@ def test_a_network_told_the_scans_starts_as_the_one_it_widens_and_reads_them(sha
     assert not np.allclose(averaged.raw(turned, scans=scans), quarter_turns(answer, 1), atol=1e-3)
     # a network that reads no scans ignores them; another network than the one widened is refused
     assert np.array_equal(Predictor(plain / "best.pt").raw(grid, scans=scans), Predictor(plain / "best.pt").raw(grid))
+    # predict on a .npy grid: the sensor positions from --scanned-at, required for this network
+    checkpoint = torch.load(told / "best.pt", weights_only=True)
+    checkpoint["state_dict"]["head.1.weight"][:, -42:] = averaged.model.head[1].weight[:, -42:]
+    torch.save(checkpoint, told / "perturbed.pt")
+    np.save(tmp_path / "grid.npy", grid)
+    predict = ["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(told / "perturbed.pt")]
     capsys.readouterr()
+    assert main(predict) == 2
+    assert "reads where the sensor has been: pass --scanned-at" in capsys.readouterr().err
+    perturbed = Predictor(told / "perturbed.pt")
+    answers = []
+    for text, positions in (("0.4,0,0;0,0,0.4", scans), ("0.4, 0, 0", scans[:1]), ("none", np.zeros((0, 3)))):
+        assert main([*predict, "--scanned-at", text]) == 0
+        answer = json.loads(capsys.readouterr().out)
+        assert answer["scanned_at"] == positions.tolist()
+        np.testing.assert_allclose(answer["position"], perturbed.predict(grid, scans=positions)[0].to_dict()["position"],
+                                   atol=1e-6)
+        answers.append(answer["network_output"])
+    assert not np.allclose(answers[0], answers[1], atol=1e-4) and not np.allclose(answers[1], answers[2], atol=1e-4)
+    assert main([*predict, "--scanned-at", "0.4,0;1,2,3"]) == 2
+    assert "give the sensor positions as x,y,z;x,y,z" in capsys.readouterr().err
+    assert main(["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(plain / "best.pt"), "--scanned-at",
+                 "0.4,0,0"]) == 2
+    assert "reads no sensor positions" in capsys.readouterr().err
     assert main(["fit", str(shards), "--epochs", "1", "--out", str(tmp_path / "no"), "--model", "nbvnet-4-5", "--init", str(plain / "best.pt"), *near]) == 2
     assert "a nbvnet-4-3 checkpoint, and this run trains nbvnet-4-5" in capsys.readouterr().err
