@@ -20,6 +20,10 @@
 #                                                 # (regression-near-best, regression-dagger, regression-dagger2...);
 #                                                 # fit regression-scans: nbvnet-4-3-scans (told where the sensor
 #                                                 # has been) from round 1's policy widened, on train + round 1
+#   benchmarks/selection.sh scans-dagger          # regression-scans' own round (round 2, seed 2, as dagger 2):
+#                                                 # rolled by its best snapshot; then fit regression-scans2 (that
+#                                                 # snapshot on train + round 1 + this round), the control being
+#                                                 # dagger 2 and fit regression-dagger2
 #   benchmarks/selection.sh scores-dagger         # the released score network's own runs on the training meshes
 #                                                 # (6 each, seed 11), every state labelled exactly: the data
 #                                                 # scores-fc3-wide adds; fit scores-fc3-dagger fine-tunes the
@@ -137,6 +141,19 @@ stage_scores_dagger() {
         --runs-per-mesh 6 --seed 11 --workers "$WORKERS" --out "$SCORES_DAGGER" "${SCENE[@]}" --no-progress
 }
 
+# regression-scans' own round: its best snapshot (or DAGGER_POLICY) rolls round 2 from the start views of
+# dagger 2 (seed 2), so that regression-dagger2 on dagger 2 is its control
+SCANS_DAGGER=$DATA-scans-dagger2
+scans_dagger_policy() { [ -n "${DAGGER_POLICY:-}" ] && echo "$DAGGER_POLICY" || best regression-scans; }
+
+stage_scans_dagger() {
+    local policy
+    policy=$(scans_dagger_policy)
+    log "regression-scans' round: $policy on the training part of $NAME $VERSION -> $SCANS_DAGGER"
+    nice -n 5 nbvdata generate --manifest "$MANIFEST" --part train --meshes "$MESHES" --policy "$policy" \
+        --runs-per-mesh 4 --seed 2 --workers "$WORKERS" --out "$SCANS_DAGGER" "${SCENE[@]}" "${CLOUDS[@]}" --no-progress
+}
+
 rolled_by() {  # POLICY DATA [STAGE]: exit 2 unless DATA is a round POLICY rolled (policy.yaml's sha256)
     if [ ! -f "$2/policy.yaml" ]; then
         echo "selection.sh: $2 holds no round: run benchmarks/selection.sh ${3:-dagger} first" >&2
@@ -187,7 +204,14 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
             local extra
             extra=$(dagger_flags 1) || exit 2
             echo "$(fit_flags regression-near-best | sed 's/nbvnet-4-3 /nbvnet-4-3-scans /') $extra" ;;
-        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N] or regression-scans" >&2
+        # regression-scans' round added: its policy on the training part + round 1 + its own round
+        regression-scans2)
+            local policy
+            policy=$(scans_dagger_policy)
+            rolled_by "$policy" "$SCANS_DAGGER" scans-dagger
+            echo "$(fit_flags regression-near-best | sed 's/nbvnet-4-3 /nbvnet-4-3-scans /') --add-train $(dagger_data 1)" \
+                "--add-train $SCANS_DAGGER --init $policy" ;;
+        *) echo "unknown network $1: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N], regression-scans or regression-scans2" >&2
            exit 2 ;;
     esac
 }
@@ -289,9 +313,10 @@ stage_test() {
 case ${1:-} in
     data) stage_data ;;
     publish) stage_publish ;;
-    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N] or regression-scans}" ;;
+    fit) stage_fit "${2:?fit NET: scores-fc3, scores-fc3-wide, scores-fc3-dagger, scores-3, regression, regression-near-best, regression-dagger[N], regression-scans or regression-scans2}" ;;
     dagger) stage_dagger "${2:-1}" ;;
     scores-dagger) stage_scores_dagger ;;
+    scans-dagger) stage_scans_dagger ;;
     select) stage_select ;;
     test) stage_test ;;
     table) table "$VAL"/* ;;
@@ -309,6 +334,8 @@ case ${1:-} in
         stage_dagger 1
         stage_fit regression-dagger
         stage_fit regression-scans
+        stage_scans_dagger                            # rolled by regression-scans' best snapshot
+        stage_fit regression-scans2
         stage_dagger 2                                # rolled by regression-dagger's best snapshot
         stage_fit regression-dagger2
         stage_select
