@@ -227,7 +227,7 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
                 f.attrs[key] = value
             for name in PER_SHARD:
                 if name in arrays:
-                    f.create_dataset(name, data=arrays[name], track_times=False)
+                    _written(f.create_dataset(name, data=arrays[name], track_times=False))
             for name in PER_SAMPLE:
                 if name not in arrays:
                     continue
@@ -235,15 +235,25 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
                 if len(data) != count:
                     raise ValueError(f"write_shard: {name} has {len(data)} rows, nbv_index has {count}")
                 chunks = (1,) + data.shape[1:] if count and data.ndim > 1 else None
-                f.create_dataset(name, data=data, chunks=chunks if count else None,
-                                 compression="gzip" if count else None,
-                                 compression_opts=4 if count else None, track_times=False)
+                _written(f.create_dataset(name, data=data, chunks=chunks if count else None,
+                                          compression="gzip" if count else None,
+                                          compression_opts=4 if count else None, track_times=False))
             f.flush()
             os.fsync(f.id.get_vfd_handle())
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
     os.replace(partial, path)
+
+
+def _written(dataset: h5py.Dataset) -> None:
+    """Put ``dataset``'s chunks in the file now. HDF5 gives a chunk its place in the file when
+    the chunk leaves the dataset's cache - when the dataset is closed, i.e. when the last Python
+    reference to it goes - so a reference held a moment longer (a profiler sampling the writing
+    thread's frames, as a Dask worker's does; a debugger) moved the chunks after the next
+    datasets': the same content in other bytes. Flushed here, the layout is the order of the
+    writes, whoever else holds the object."""
+    dataset.flush()
 
 
 @dataclass(frozen=True)

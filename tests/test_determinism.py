@@ -114,3 +114,70 @@ def test_a_face_seen_head_on_is_hit_exactly_on_its_plane():
     assert scan.hit.sum() > 1000
     assert np.all(scan.hit_points[:, 0] == np.float32(0.05))
     assert np.all(np.abs(scan.hit_points[:, 1:]) <= 0.05 + 1e-7)
+
+
+# ---------------------------------------------------------------------------------------------
+# The same bytes whatever else the writing process did or does
+
+
+def _smoke_units(*settings: str):
+    from nbvdata.config import SimConfig, load_config
+    from nbvdata.generate import builtin_sources, plan_units
+
+    config = load_config(SimConfig, SMOKE, ["generate.workers=1", *settings])
+    return config, plan_units(builtin_sources(config.mesh)[:3], config)
+
+
+def test_a_shard_is_the_same_bytes_while_something_else_holds_its_datasets(tmp_path, monkeypatch):
+    """HDF5 places a chunk in the file when it leaves the dataset's cache, i.e. when the dataset is
+    closed; a Dask worker's profiler samples the writing thread's frames and so keeps a dataset
+    object alive a moment longer now and then (a killed worker's unit, redone elsewhere, came out
+    in other bytes). Here every dataset object is held until the file is written."""
+    import h5py
+
+    from nbvdata.generate import run_unit
+
+    config, units = _smoke_units("state.points=64")
+    run_unit(units[0], config, tmp_path / "plain")
+    held, create = [], h5py.Group.create_dataset
+
+    def create_and_hold(group, *args, **kwargs):
+        held.append(create(group, *args, **kwargs))
+        return held[-1]
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", create_and_hold)
+    run_unit(units[0], config, tmp_path / "held")
+    assert len(held) >= 15
+    held.clear()
+    assert _sha256s(tmp_path / "plain") == _sha256s(tmp_path / "held")
+
+
+_RUN_UNIT = """
+import sys
+from pathlib import Path
+sys.path.insert(0, {tests!r})
+from test_determinism import _smoke_units
+from nbvdata.generate import run_unit
+config, units = _smoke_units()
+run_unit(units[{index}], config, Path({out!r}))
+"""
+
+
+def test_a_unit_redone_after_other_units_or_in_a_fresh_process_is_the_same_bytes(tmp_path):
+    """What a lost cluster worker's unit goes through: done again by a worker that has already
+    written other shards, or by a new process."""
+    from nbvdata.generate import run_unit
+
+    config, units = _smoke_units()
+    for unit in units:
+        run_unit(unit, config, tmp_path / "first")
+    first = _sha256s(tmp_path / "first")
+    assert len(first) == 3
+    for unit in reversed(units):  # the same process, each unit after the others
+        run_unit(unit, config, tmp_path / "again")
+    fresh = tmp_path / "fresh"
+    code = _RUN_UNIT.format(tests=str(Path(__file__).parent), index=1, out=str(fresh))
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert _sha256s(tmp_path / "again") == first
+    assert _sha256s(fresh) == {units[1].shard_name: first[units[1].shard_name]}
