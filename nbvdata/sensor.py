@@ -485,9 +485,11 @@ def _fill_cells(first, last, shape):
 @numba.njit(cache=True)
 def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
     """(t, margin, gap) of a ray (float64 origin and direction) and triangle ``f``: t its
-    distance to the triangle's plane (as ``_plane_distances``); margin the signed distance
-    (metres, in the plane) of that plane point from the triangle's nearest edge, negative
-    outside; gap the least signed distance between the ray's line and an edge's line, what a
+    distance to the triangle's plane (as ``_plane_distances``); margin how far that plane point
+    lies inside the triangle (metres, in the plane): inside, its distance from the nearest edge;
+    outside, minus its distance from the triangle (from the nearest point of an edge, not of the
+    edge's line: behind the sharp corner of a sliver the lines stay near for hundreds of um);
+    gap the least signed distance between the ray's line and an edge's line, what a
     perturbation of the ray must exceed to cross that edge - the quantity Embree's float32 doubt
     acts on (h |cos| / sin(ray, edge) for a plane point h inside the edge). margin and gap -inf
     for a degenerate triangle or a ray parallel to it."""
@@ -502,7 +504,7 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
     bx, by, bz = np.float64(vertices[b, 0]), np.float64(vertices[b, 1]), np.float64(vertices[b, 2])
     cx, cy, cz = np.float64(vertices[d, 0]), np.float64(vertices[d, 1]), np.float64(vertices[d, 2])
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-    margin, gap = np.inf, np.inf
+    margin, gap, outside = np.inf, np.inf, np.inf
     for edge in range(3):  # (start, end) = (a, b), (b, c), (c, a): inside is the positive side
         if edge == 0:
             sx, sy, sz, ex, ey, ez = ax, ay, az, bx, by, bz
@@ -521,7 +523,10 @@ def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
         inside = (wx * nx + wy * ny) + wz * nz
         margin = min(margin, inside / (norm * length))
         gap = min(gap, inside * along / (norm2 * across))
-    return t, margin, gap
+        s = min(max(((ux * vx + uy * vy) + uz * vz) / (length * length), 0.0), 1.0)  # nearest point of the edge
+        rx, ry, rz = vx - s * ux, vy - s * uy, vz - s * uz
+        outside = min(outside, math.sqrt((rx * rx + ry * ry) + rz * rz))
+    return t, (margin if margin >= 0.0 else -outside), gap
 
 
 @numba.njit(cache=True)

@@ -220,6 +220,28 @@ def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
     np.testing.assert_allclose(answers[0][1], answers[0][0], atol=1e-6)
 
 
+def test_a_sliver_claims_no_hit_behind_its_sharp_corner():
+    """A 1-degree sliver (triangle 0) with its sharp corner at the origin, 7 um above a plane
+    (triangle 1): a ray down through x = -0.1 mm meets the plane. Behind the corner the plane point
+    of the sliver lies within 3.8 um of both long edges' *lines* (0.1 mm x sin 0.5 deg = 0.87 um),
+    though 0.1 mm from the sliver: it must not be a candidate, or the cloud point lands 7 um off
+    the surface (up to 0.4 mm for such a sliver: the teddy bear of issue 50)."""
+    from nbvdata.sensor import EDGE_TOLERANCE, TriangleCells, _canonical_distances, _plane_distances
+
+    half = 0.05 * np.tan(np.radians(0.5))
+    vertices = np.array([[0, 0, 7e-6], [0.05, -half, 7e-6], [0.05, half, 7e-6],
+                         [-0.02, -0.02, 0], [0.02, -0.02, 0], [0, 0.03, 0]], dtype=np.float32)
+    faces = np.array([[0, 1, 2], [3, 4, 5]], dtype=np.uint32)
+    rays = np.array([[-1e-4, 0, 0.4, 0, 0, -1]], dtype=np.float32)
+    cast, reported = np.array([0]), np.array([1], dtype=np.uint32)  # Embree: the plane below
+    t_cast, t_cloud, canon = np.empty(1), np.empty(1), np.empty(1, dtype=np.int64)
+    _plane_distances(rays, cast, reported, vertices, faces, t_cast)
+    _canonical_distances(rays, cast, reported, t_cast, vertices, faces, *TriangleCells.build(vertices, faces),
+                         t_cloud, canon, np.empty(1))
+    assert canon[0] == 1 and t_cloud[0] == t_cast[0] == np.float64(np.float32(0.4))
+    assert EDGE_TOLERANCE < 7e-6 < 2 * EDGE_TOLERANCE  # the sliver is within the depth window, beyond the bound
+
+
 def test_scan_clouds_do_not_depend_on_which_triangle_embree_reports():
     """A whole scanner whose Embree casts every ray a few ulps off (another CPU's float32 doubt),
     on a mesh with every kind of tie: shared edges (a mug), duplicated faces (a copy of its faces,
