@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
 from nbvdata.claims import write_atomic  # noqa: E402
-from nbvdata.config import SimConfig, from_dict  # noqa: E402
+from nbvdata.config import OracleConfig, SimConfig, from_dict  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import COVER, GENERATED, Shard  # noqa: E402
 from nbvdata.summary import Summary, format_summary, summarise  # noqa: E402
@@ -182,8 +182,8 @@ def _made(content: dict, policies: set[str] = frozenset()) -> list[str]:
              *_moves(episode, oracle, policies), *_clouds(config),
              *([f"- Set-cover labels (`oracle.cover`, docs/setcover.md): every state also holds the fewest candidate "
                 f"views whose scans cover all the observable surface it has not covered (`cover`, SCVP's label), solved "
-                f"by HiGHS within {oracle.get('cover_time_limit', 10.0):g} s of wall time per state; `cover_bound` == "
-                "`cover_size` marks the labels proved optimal, the only ones the same on every machine."]
+                f"by HiGHS within {_cover_limit(oracle)} per state; `cover_bound` == `cover_size` marks the labels "
+                "proved optimal."]
                if oracle.get("cover") else []),
              "- Every setting is in the manifest's `config` and in each shard's `config` attribute."]
     command = _reproduce(content, policies)
@@ -213,6 +213,13 @@ def _grid_words(config: dict) -> str:
 # How the card names a views.layout (any other: "the <layout>").
 LAYOUT_WORDS = {"pc-nbv-33": "PC-NBV's 33-view layout (`pc-nbv-33`, their y-up directions turned to z-up)",
                 "scvp-32": "SCVP's 32-view layout (`scvp-32`, their directions)"}
+
+
+def _cover_limit(oracle: dict) -> str:
+    """How a card's set-cover labels were bounded: the node count, or (datasets made before it) seconds."""
+    if "cover_time_limit" in oracle:
+        return f"{oracle['cover_time_limit']:g} s of wall time (labels not proved optimal depend on the machine)"
+    return f"{oracle.get('cover_node_limit', OracleConfig.cover_node_limit):,} branch-and-bound nodes (the same labels on every machine)"
 
 
 def _clouds(config: dict) -> list[str]:

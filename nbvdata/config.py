@@ -161,14 +161,16 @@ class OracleConfig:
     """Also label every state with the fewest candidate views that cover all the observable surface
     it has not covered yet (SCVP's set-cover label, ``nbvdata.setcover``): the shards then hold
     ``cover``, ``cover_size``, ``cover_bound`` and ``cover_greedy``. False: the data of before."""
-    cover_time_limit: float = 10.0
-    """Seconds of wall time a state's set cover may take (SCVP's Gurobi limit, 10 s); a state that
-    hits it keeps the best set found and the proven lower bound (``cover_bound`` < ``cover_size``)."""
+    cover_node_limit: int = 200
+    """Branch-and-bound nodes (HiGHS's count) a state's set cover may use in all its solver calls:
+    a count, not seconds (SCVP's Gurobi had 10 s), so every label is the same on any machine under
+    any load. A state that uses them up keeps the best set found and the proven lower bound
+    (``cover_bound`` < ``cover_size``)."""
 
     def __post_init__(self) -> None:
         _check(0 <= self.min_overlap <= 1, f"oracle.min_overlap={self.min_overlap}: must be in [0, 1]")
-        _check(self.cover_time_limit > 0,
-               f"oracle.cover_time_limit={self.cover_time_limit}: must be > 0 seconds (10 is SCVP's limit)")
+        _check(self.cover_node_limit >= 1,
+               f"oracle.cover_node_limit={self.cover_node_limit}: must be >= 1 branch-and-bound node")
 
 
 @dataclass(frozen=True)
@@ -270,7 +272,7 @@ class SimConfig:
 # them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
 # recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
 NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0, ("state", "points"): 0,
-                    ("oracle", "cover"): False, ("oracle", "cover_time_limit"): 10.0}
+                    ("oracle", "cover"): False, ("oracle", "cover_node_limit"): OracleConfig.cover_node_limit}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -243,7 +243,7 @@ def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
             break
         if cover is not None:
             started = time.perf_counter()
-            cover = next_cover(oracle, state.covered, cover, exact, config.oracle.cover_time_limit)
+            cover = next_cover(oracle, state.covered, cover, exact, config.oracle.cover_node_limit)
             record.add_cover(cover, len(scene.views), time.perf_counter() - started)
         record.log_odds.append(state.grid.log_odds.copy())
         record.nbv_index.append(nbv)

@@ -50,7 +50,7 @@ class Scene:
         call: it bounds every run's first state (``nbvdata.setcover.next_cover``)."""
         if self._empty_cover is None:
             nothing = np.zeros_like(self.oracle.observable)
-            self._empty_cover = solve_cover(self.oracle, nothing, self.config.oracle.cover_time_limit)
+            self._empty_cover = solve_cover(self.oracle, nothing, self.config.oracle.cover_node_limit)
         return self._empty_cover
 
     def new_grid(self) -> OccupancyGrid:

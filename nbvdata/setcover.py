@@ -13,23 +13,33 @@ Reductions, each keeping the optimum and the canonical set below:
   the rows are the minimal covering sets (``_minimal_rows``).
 - A view that covers no row, or only rows that a lower-indexed view also covers, is dropped as a
   candidate: replacing it by that view gives a cover no larger and lexicographically smaller.
+- Small covers are found, or proved not to exist, by an exact branching search first
+  (``_search``: cover the uncovered row seen by the fewest views, by each of its views in turn,
+  never a view a sibling branch has tried): it proves in a fraction of a second what HiGHS takes
+  minutes over on dense instances (a mesh whose points are each seen by hundreds of views, whose
+  LP bound is far below the optimum), and gives up after ``SEARCH_NODES`` branches, where the
+  MILP takes over.
 - Two cheap covers bound the search from above: the greedy cover (most new points first, ties to
   the lowest index) and, along a run, the previous state's cover (``label_run_state``). SciPy's
   ``milp`` takes no starting solution, so the best of them enters as a constraint instead: the
   solver is asked only for a cover smaller than it, between the known lower bound and that.
 
 The stored set is a function of the problem, never of the solver's path: a set from the solver
-(HiGHS may pick another optimal set with other threads, timing or CPU) is replaced by the
+(HiGHS may pick another optimal set with other settings or versions) is replaced by the
 lexicographically smallest optimal cover (``_lexicographic_cover``); a set kept from a cheap cover
-is a function of the run already. That holds for every state solved within
-``oracle.cover_time_limit`` seconds of wall time: a state that hits the limit keeps the best set
-found and the proven bound, which depend on the machine's speed (``Cover.proved`` tells).
+is a function of the run already.
+
+The work is bounded by a count, never by time: a state may use ``oracle.cover_node_limit``
+branch-and-bound nodes in all its solver calls together (``NodeBudget``; HiGHS counts them, and
+its search is deterministic). A state that uses them up keeps the best set found and the proven
+bound (``Cover.proved`` tells) - the same ones on an idle machine and a busy one, whatever the
+speed. The root of each solve (presolve, LP, cuts) is not counted, but it is finite and the same
+work everywhere; it is what the ``benchmarks/cover.py`` time measures.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numba
@@ -60,6 +70,21 @@ class Cover:
     @property
     def proved(self) -> bool:
         return self.bound == self.size
+
+
+class NodeBudget:
+    """The branch-and-bound nodes a state's set cover may still use (``oracle.cover_node_limit``),
+    shared by all its solver calls: each takes what HiGHS reports it used."""
+
+    def __init__(self, nodes: int):
+        self.nodes = int(nodes)
+
+    def spend(self, used: int | None) -> None:
+        self.nodes = max(self.nodes - int(used or 0), 0)
+
+    @property
+    def spent(self) -> bool:
+        return self.nodes <= 0
 
 
 def greedy_cover(oracle: ViewOracle, covered: np.ndarray) -> list[int]:
@@ -138,16 +163,109 @@ def _covers(rows: np.ndarray, views) -> bool:
     return bool(rows[:, sorted(views)].any(axis=1).all()) if len(rows) else True
 
 
-def _milp(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds: float):
+SEARCH_NODES = 500_000  # branches of one exact search before the MILP takes over (a count: the same everywhere)
+
+
+@numba.njit(cache=True)
+def _first_row(words):
+    """Index of the lowest set bit of (W,) uint64 ``words``, -1 for none."""
+    for w in range(words.shape[0]):
+        x = words[w]
+        if x:
+            b = 0
+            while not (x >> np.uint64(b)) & np.uint64(1):
+                b += 1
+            return w * 64 + b
+    return -1
+
+
+@numba.njit(cache=True)
+def _search(columns, covering, starts, k, budget):
+    """A cover of every row by at most ``k`` views, by exact branching: the first uncovered row
+    (rows are numbered fewest views first) is covered by each of its views in turn, and a view a
+    sibling branch has tried stays out of the later siblings' subtrees (any cover holding it was
+    searched there).
+
+    columns (V, W) uint64: view v's rows; covering[starts[r]:starts[r + 1]]: the views that cover
+    row r, ascending. Returns (size or -1 for none, (k,) chosen views, branches used, finished):
+    finished False when ``budget`` branches did not decide it."""
+    views, words = columns.shape
+    rows = starts.shape[0] - 1
+    chosen = np.full(max(k, 1), -1, dtype=np.int64)
+    if rows == 0:
+        return 0, chosen, 0, True
+    if k == 0:
+        return -1, chosen, 0, True
+    uncovered = np.zeros((k + 1, words), dtype=np.uint64)
+    for r in range(rows):
+        uncovered[0, r // 64] |= np.uint64(1) << np.uint64(r % 64)
+    excluded = np.zeros((k + 1, views), dtype=np.bool_)
+    row = np.empty(k + 1, dtype=np.int64)
+    at = np.empty(k + 1, dtype=np.int64)
+    row[0], at[0] = 0, starts[0]
+    depth, used = 0, 0
+    while True:
+        if at[depth] == starts[row[depth] + 1]:  # every view of this row tried: back up
+            depth -= 1
+            if depth < 0:
+                return -1, chosen, used, True
+            excluded[depth, chosen[depth]] = True
+            at[depth] += 1
+            continue
+        v = covering[at[depth]]
+        if excluded[depth, v]:
+            at[depth] += 1
+            continue
+        used += 1
+        if used > budget:
+            return -1, chosen, used, False
+        chosen[depth] = v
+        left = False
+        for w in range(words):
+            x = uncovered[depth, w] & ~columns[v, w]
+            uncovered[depth + 1, w] = x
+            left = left or x != 0
+        if not left:
+            return depth + 1, chosen, used, True
+        if depth + 1 == k:
+            excluded[depth, v] = True
+            at[depth] += 1
+            continue
+        excluded[depth + 1, :] = excluded[depth, :]
+        excluded[depth + 1, v] = True
+        depth += 1
+        row[depth] = _first_row(uncovered[depth])
+        at[depth] = starts[row[depth]]
+
+
+def _smallest(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, budget: NodeBudget):
+    """Smallest cover of ``rows`` ((n, V) bool) by the views ``columns`` with lower <= size <= upper:
+    (views or None, proven lower bound, finished), as ``_milp_direct``. The exact search first, size
+    by size from ``lower``; where it gives up, HiGHS (``_milp``) from the size it reached."""
+    sub = rows[:, columns]
+    order = np.argsort(sub.sum(axis=1), kind="stable")
+    sub = sub[order]
+    packed = pack_bits(sub.T)
+    starts = np.concatenate([[0], np.cumsum(sub.sum(axis=1))]).astype(np.int64)
+    covering = np.nonzero(sub)[1].astype(np.int64)
+    for k in range(max(lower, 0), upper + 1):
+        size, chosen, _, finished = _search(packed, covering, starts, k, SEARCH_NODES)
+        if not finished:
+            return _milp(rows, columns, k, upper, budget)
+        if size >= 0:
+            return [int(v) for v in columns[chosen[:size]]], size, True
+    return None, upper + 1, True
+
+
+def _milp(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, budget: NodeBudget):
     """``_milp_direct`` on a growing subset of the rows (constraint generation): a subset's program
     is a relaxation, so its optimum is a lower bound and its infeasibility is the whole program's;
     a subset's optimal cover that covers every row is optimal for all of them. Dense instances
     (thousands of rows, each seen by hundreds of views) thus solve on a few hundred rows."""
-    deadline = time.perf_counter() + seconds
     sizes = rows.sum(axis=1)
     active = _seed_rows(rows, sizes)
     while True:
-        views, bound, finished = _milp_direct(rows[active], columns, lower, upper, deadline - time.perf_counter())
+        views, bound, finished = _milp_direct(rows[active], columns, lower, upper, budget)
         if views is None or not finished:
             covers = views is not None and _covers(rows, views)
             return (views if covers else None), bound, finished
@@ -173,22 +291,25 @@ def _seed_rows(rows: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     return np.union1d(order[:ROWS_SEED], np.array(packed, dtype=np.int64))
 
 
-def _milp_direct(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, seconds: float):
+def _milp_direct(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, budget: NodeBudget):
     """Smallest cover of ``rows`` by the views ``columns`` with lower <= size <= upper.
 
     Returns (views or None, bound, finished): the cover found (None: none), the proven lower bound
     on the smallest cover within the size range, and whether the solver finished (proved the
-    cover optimal, or that none exists) before ``seconds``."""
+    cover optimal, or that none exists) within the nodes ``budget`` has left (it takes those used)."""
     from scipy.optimize import Bounds, LinearConstraint, milp
     from scipy.sparse import csr_matrix
 
     if upper < lower or len(columns) == 0:
         return None, upper + 1, True
+    if budget.spent:
+        return None, lower, False
     count = len(columns)
     constraints = [LinearConstraint(csr_matrix(rows[:, columns].astype(np.float64)), lb=1, ub=np.inf),
                    LinearConstraint(np.ones((1, count)), lb=lower, ub=upper)]
     result = milp(np.ones(count), integrality=np.ones(count), bounds=Bounds(0, 1), constraints=constraints,
-                  options={"time_limit": max(seconds, 1e-3), "mip_rel_gap": 0.0, "disp": False})
+                  options={"node_limit": budget.nodes, "mip_rel_gap": 0.0, "disp": False})
+    budget.spend(getattr(result, "mip_node_count", None) or 1)  # a solve at the root counts one
     if result.status == 2:  # infeasible: no cover within the range
         return None, upper + 1, True
     views = None if result.x is None else [int(v) for v in columns[result.x > 0.5]]
@@ -200,12 +321,12 @@ def _milp_direct(rows: np.ndarray, columns: np.ndarray, lower: int, upper: int, 
     return views, (len(views) if finished else bound), finished
 
 
-def _lp_bound(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[float, np.ndarray] | None:
+def _lp_bound(rows: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray] | None:
     """A lower bound on covering ``rows`` by ``columns`` and (n,) row prices that prove it (a
     feasible dual: no column's rows cost more than 1): the LP relaxation of the ``_seed_rows``
-    subset, a relaxation of the whole; None when it is not solved within ``seconds``."""
+    subset, a relaxation of the whole; None when HiGHS does not solve it."""
     subset = _seed_rows(rows, rows.sum(axis=1))
-    solved = _lp_direct(rows[subset], columns, seconds)
+    solved = _lp_direct(rows[subset], columns)
     if solved is None:
         return None
     prices = np.zeros(len(rows))
@@ -213,15 +334,15 @@ def _lp_bound(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[fl
     return solved[0], prices
 
 
-def _lp_direct(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[float, np.ndarray] | None:
+def _lp_direct(rows: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray] | None:
     """The LP relaxation's optimum of covering ``rows`` by ``columns`` and its dual (n,) row prices,
-    or None when it is not solved within ``seconds``."""
+    or None when HiGHS does not solve it (a covering LP of a few hundred rows solves in milliseconds:
+    no limit)."""
     from scipy.optimize import linprog
     from scipy.sparse import csr_matrix
 
     result = linprog(np.ones(len(columns)), A_ub=-csr_matrix(rows[:, columns].astype(np.float64)),
-                     b_ub=-np.ones(len(rows)), bounds=(0, None), method="highs",
-                     options={"time_limit": max(seconds, 1e-3)})
+                     b_ub=-np.ones(len(rows)), bounds=(0, None), method="highs")
     if result.status == 2:  # infeasible: some row no column covers
         return math.inf, np.zeros(len(rows))
     if result.status != 0:
@@ -230,9 +351,9 @@ def _lp_direct(rows: np.ndarray, columns: np.ndarray, seconds: float) -> tuple[f
 
 
 def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, cover: list[int],
-                         deadline: float) -> list[int] | None:
+                         budget: NodeBudget) -> list[int] | None:
     """The lexicographically smallest cover of ``rows`` with ``size`` views (the optimum), given
-    one such ``cover``; None when ``deadline`` (time.perf_counter) passes first.
+    one such ``cover``; None when ``budget`` runs out first.
 
     Decides the candidate views in index order: view j joins when some optimal cover holds the
     views chosen so far and j and otherwise only views after j. A witness answers yes without a
@@ -253,9 +374,9 @@ def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, co
         if not rows[left, j].any():
             continue
         if j not in best:
-            if time.perf_counter() > deadline:
+            if budget.spent:
                 return None
-            budget = size - len(chosen) - 1
+            room = size - len(chosen) - 1  # views left for the rest after j
             rest = left & ~rows[:, j]
             swapped = next((best - {s} | {j} for s in sorted(best - set(chosen), reverse=True)
                             if s > j and _covers(rows, best - {s} | {j})), None)
@@ -268,18 +389,18 @@ def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, co
                 if not later_rows.any(axis=1).all():
                     continue
                 load = float((prices[rest] @ later_rows).max()) if later_rows.shape[1] else 0.0
-                if prices[rest].sum() / max(load, 1.0) > budget + FEASIBILITY_TOLERANCE:
+                if prices[rest].sum() / max(load, 1.0) > room + FEASIBILITY_TOLERANCE:
                     continue
                 columns = np.flatnonzero(later)
-                solved = _lp_bound(rows[rest], columns, deadline - time.perf_counter())
+                solved = _lp_bound(rows[rest], columns)
                 if solved is None:
                     return None
                 relaxed, dual = solved
                 prices = np.zeros(count)
                 prices[rest] = dual
-                if relaxed > budget + FEASIBILITY_TOLERANCE:
+                if relaxed > room + FEASIBILITY_TOLERANCE:
                     continue
-                views, _, finished = _milp(rows[rest], columns, 0, budget, deadline - time.perf_counter())
+                views, _, finished = _smallest(rows[rest], columns, 0, room, budget)
                 if not finished:
                     return None
                 if views is None:
@@ -290,13 +411,14 @@ def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, co
     return sorted(chosen) if not left.any() and len(chosen) == size else None
 
 
-def solve_cover(oracle: ViewOracle, covered: np.ndarray, time_limit: float, incumbent: tuple[int, ...] = (),
+def solve_cover(oracle: ViewOracle, covered: np.ndarray, node_limit: int, incumbent: tuple[int, ...] = (),
                 lower: int = 0) -> Cover:
     """The set-cover label of the state whose covered points are ``covered`` ((W,) packed).
 
     ``incumbent``: views known to cover what is left (a previous state's cover), or nothing;
-    ``lower``: a proven lower bound on the optimum. Solves within ``time_limit`` seconds."""
-    deadline = time.perf_counter() + time_limit
+    ``lower``: a proven lower bound on the optimum. Uses at most ``node_limit`` branch-and-bound
+    nodes (``NodeBudget``)."""
+    budget = NodeBudget(node_limit)
     remaining = oracle.observable & ~covered
     if popcount(remaining) == 0:
         return Cover((), 0, 0)
@@ -309,18 +431,17 @@ def solve_cover(oracle: ViewOracle, covered: np.ndarray, time_limit: float, incu
         return Cover(tuple(sorted(best)), len(best), len(greedy))
     rows = _minimal_rows(oracle, remaining)
     candidates = _candidates(rows)
-    views, bound, finished = _milp(rows, np.flatnonzero(candidates), lower, len(best) - 1,
-                                   deadline - time.perf_counter())
+    views, bound, finished = _smallest(rows, np.flatnonzero(candidates), lower, len(best) - 1, budget)
     if views is None:  # none smaller: the cheap cover is optimal if the solver finished
         return Cover(tuple(sorted(best)), len(best) if finished else min(bound, len(best)), len(greedy))
     if finished:
-        canonical = _lexicographic_cover(rows, candidates, len(views), views, deadline)
+        canonical = _lexicographic_cover(rows, candidates, len(views), views, budget)
         views = canonical if canonical is not None else views
     return Cover(tuple(sorted(views)), min(bound, len(views)), len(greedy))
 
 
 def next_cover(oracle: ViewOracle, covered: np.ndarray, previous: Cover, moved_to: int | None,
-               time_limit: float) -> Cover:
+               node_limit: int) -> Cover:
     """The label of the state a run reaches from the state labelled ``previous`` by scanning
     candidate view ``moved_to`` (None: a scan that is no candidate's noise-free scan).
 
@@ -340,4 +461,4 @@ def next_cover(oracle: ViewOracle, covered: np.ndarray, previous: Cover, moved_t
     """
     incumbent = tuple(v for v in previous.views if v != moved_to)
     lower = previous.bound - 1 if moved_to is not None else 0
-    return solve_cover(oracle, covered, time_limit, incumbent, lower)
+    return solve_cover(oracle, covered, node_limit, incumbent, lower)

@@ -523,7 +523,7 @@ def build_parser() -> Parser:
                           "processes of one thread each; the same outputs but timings (default 1; 0 = one per core)")
     evaluate.add_argument("--floors", action=argparse.BooleanOptionalAction, default=True,
                           help="the set cover of every start (floors.csv; the fewest scans any planner could need), "
-                          "up to oracle.cover_time_limit seconds each (default on; --no-floors for the many "
+                          "up to oracle.cover_node_limit branch-and-bound nodes each (default on; --no-floors for the many "
                           "evaluations that choose a network)")
     evaluate.add_argument("--rerun", type=Path, metavar="DIR", help="also write a Rerun recording per mesh, "
                           "DIR/MESH.rrd, every planner's reconstructions side by side (open one with: rerun "

@@ -126,7 +126,7 @@ def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
     noise, _ = np.random.SeedSequence(seed).spawn(2)
     state = Reconstruction(scene, None, np.random.default_rng(noise))
     state.scan_pose(scene.views[first_view])
-    cover = solve_cover(scene.oracle, state.covered, scene.config.oracle.cover_time_limit)
+    cover = solve_cover(scene.oracle, state.covered, scene.config.oracle.cover_node_limit)
     return {"cover_size": cover.size, "cover_bound": cover.bound, "cover_greedy": cover.greedy}
 
 
@@ -176,8 +176,8 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
     then writes the files). ``workers`` > 1 evaluates meshes in that many processes (joblib loky,
     one thread each); the rows are the same, in the same order, as with one. ``floors`` False
-    leaves out the set cover of every start (``start_floor``: up to ``oracle.cover_time_limit``
-    seconds each), e.g. for the many evaluations that choose a network. ``rerun``: a folder for
+    leaves out the set cover of every start (``start_floor``: up to ``oracle.cover_node_limit``
+    branch-and-bound nodes each), e.g. for the many evaluations that choose a network. ``rerun``: a folder for
     one Rerun recording per mesh, ``<mesh>.rrd`` (``evaluate_mesh``); the rows are the same."""
     from tqdm import tqdm
 

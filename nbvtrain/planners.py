@@ -291,13 +291,14 @@ class OraclePlanner(Planner):
 
 class SetCoverPlanner(Planner):
     """SCVP's plan: the set cover of the first state it sees, scanned most new surface first
-    (see the module docstring); ``time_limit``: seconds for that one solve."""
+    (see the module docstring); ``node_limit``: branch-and-bound nodes for that one solve
+    (``oracle.cover_node_limit``)."""
 
     name = "setcover"
     privileged = True
 
-    def __init__(self, views: ViewSet, time_limit: float):
-        self.views, self.time_limit = views, time_limit
+    def __init__(self, views: ViewSet, node_limit: int):
+        self.views, self.node_limit = views, node_limit
         self.plan: list[int] | None = None
 
     def start(self, seed: int | np.random.SeedSequence) -> None:
@@ -308,7 +309,7 @@ class SetCoverPlanner(Planner):
 
         oracle = truth.scene.oracle
         if self.plan is None:
-            self.plan = list(solve_cover(oracle, truth.covered, self.time_limit).views)
+            self.plan = list(solve_cover(oracle, truth.covered, self.node_limit).views)
         new = oracle.score(truth.covered).new
         if self.plan:
             view = max(self.plan, key=lambda v: (new[v], -v))  # most new surface, ties to the lowest index
@@ -574,7 +575,7 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
         elif name == "oracle":
             planners.append(OraclePlanner(views, config.oracle.min_overlap))
         elif name == "setcover":
-            planners.append(SetCoverPlanner(views, config.oracle.cover_time_limit))
+            planners.append(SetCoverPlanner(views, config.oracle.cover_node_limit))
         elif name == "random":
             planners.append(RandomPlanner(views))
         elif name == "farthest":

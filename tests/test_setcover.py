@@ -1,4 +1,4 @@
-"""Set-cover labels: agreement with brute force, the reuse rules, canonical sets, time limits."""
+"""Set-cover labels: agreement with brute force, the reuse rules, canonical sets, work limits."""
 
 import hashlib
 import itertools
@@ -59,7 +59,7 @@ def test_optimum_and_canonical_set_equal_brute_force(seed):
                        density=float(rng.uniform(0.08, 0.4)))
     scanned = rng.choice(len(oracle), size=int(rng.integers(0, 3)), replace=False)
     covered = np.bitwise_or.reduce(oracle.visible[scanned], axis=0) if len(scanned) else np.zeros_like(oracle.observable)
-    cover = solve_cover(oracle, covered, time_limit=30)
+    cover = solve_cover(oracle, covered, node_limit=10**6)
     optimum, smallest = _brute_force(oracle, covered)
     assert _covers(oracle, covered, cover.views)
     assert cover.proved and cover.size == optimum and cover.bound == optimum
@@ -77,10 +77,11 @@ def test_constraint_generation_from_a_few_rows_gives_the_same_labels(seed, monke
     oracle = _instance(rng, views=int(rng.integers(4, 15)), points=int(rng.integers(10, 80)),
                        density=float(rng.uniform(0.08, 0.4)))
     covered = np.zeros_like(oracle.observable)
-    whole = solve_cover(oracle, covered, time_limit=30)
+    whole = solve_cover(oracle, covered, node_limit=10**6)
+    monkeypatch.setattr(setcover, "SEARCH_NODES", 0)  # the MILP alone
     monkeypatch.setattr(setcover, "ROWS_SEED", 2)
     monkeypatch.setattr(setcover, "ROWS_ADDED", 1)
-    assert solve_cover(oracle, covered, time_limit=30) == whole
+    assert solve_cover(oracle, covered, node_limit=10**6) == whole
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -90,11 +91,11 @@ def test_run_labels_follow_the_reuse_rules_and_stay_optimal(seed):
     rng = np.random.default_rng(100 + seed)
     oracle = _instance(rng, views=int(rng.integers(6, 14)), points=60, density=0.15)
     covered = np.zeros_like(oracle.observable)
-    previous = solve_cover(oracle, covered, 30)
+    previous = solve_cover(oracle, covered, 10**6)
     assert previous.size == _brute_force(oracle, covered)[0]
     for view in rng.permutation(len(oracle))[:6]:
         covered = covered | oracle.visible[view]
-        label = next_cover(oracle, covered, previous, int(view), 30)
+        label = next_cover(oracle, covered, previous, int(view), 10**6)
         optimum = _brute_force(oracle, covered)[0]
         assert _covers(oracle, covered, label.views) and label.proved and label.size == optimum
         assert previous.size - 1 <= label.size <= previous.size
@@ -129,21 +130,69 @@ def test_reductions_keep_the_minimal_covering_sets_and_the_undominated_views():
     assert _candidates(rows).tolist() == [True, False, True, False]
 
 
-def test_a_state_that_hits_the_time_limit_keeps_a_cover_and_a_true_bound(monkeypatch):
-    """With no time at all the solver proves nothing: the label is the best cheap cover with a
-    lower bound no larger than the optimum, never an error."""
-    rng = np.random.default_rng(5)
-    oracle = _instance(rng, views=12, points=80, density=0.2)
+@pytest.mark.parametrize("seed", range(30))
+def test_the_exact_search_and_the_milp_give_the_same_labels(seed, monkeypatch):
+    rng = np.random.default_rng(300 + seed)
+    oracle = _instance(rng, views=int(rng.integers(8, 30)), points=int(rng.integers(40, 200)),
+                       density=float(rng.uniform(0.1, 0.3)))
     covered = np.zeros_like(oracle.observable)
-    cover = solve_cover(oracle, covered, time_limit=1e-9)
-    optimum = _brute_force(oracle, covered)[0]
-    assert _covers(oracle, covered, cover.views)
-    assert 1 <= cover.bound <= optimum <= cover.size <= cover.greedy
+    searched = solve_cover(oracle, covered, node_limit=10**4)
+    monkeypatch.setattr(setcover, "SEARCH_NODES", 0)
+    assert solve_cover(oracle, covered, node_limit=10**4) == searched and searched.proved
+
+
+def test_the_exact_search_proves_what_it_finds_and_gives_up_within_its_budget():
+    """Five views, each covering all but one of five rows: no single view covers, two do; with one
+    branch the search cannot tell."""
+    rows = ~np.eye(5, dtype=bool)
+    sub = rows[np.argsort(rows.sum(axis=1), kind="stable")]
+    packed, covering = setcover.pack_bits(sub.T), np.nonzero(sub)[1].astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(sub.sum(axis=1))]).astype(np.int64)
+    assert setcover._search(packed, covering, starts, 1, 100)[0] == -1  # proved: none of one view
+    size, chosen, used, finished = setcover._search(packed, covering, starts, 2, 100)
+    assert finished and size == 2 and rows[:, chosen[:2]].any(axis=1).all()
+    assert setcover._search(packed, covering, starts, 1, 1)[3] is False
+
+
+def _hard_instance(monkeypatch) -> tuple[ViewOracle, np.ndarray]:
+    """An instance whose optimum takes HiGHS more than one branch-and-bound node (and is below
+    greedy), solved by the MILP alone (the exact search would prove it at once)."""
+    monkeypatch.setattr(setcover, "SEARCH_NODES", 0)
+    oracle = _instance(np.random.default_rng(0), views=30, points=200, density=0.25)
+    return oracle, np.zeros_like(oracle.observable)
+
+
+def test_a_state_that_hits_the_node_limit_keeps_a_cover_and_a_true_bound(monkeypatch):
+    """With one node the solver proves little: the label is a cover with a lower bound no larger
+    than the optimum, never an error; with enough nodes the same state is proved optimal."""
+    oracle, covered = _hard_instance(monkeypatch)
+    cover = solve_cover(oracle, covered, node_limit=1)
+    whole = solve_cover(oracle, covered, node_limit=10**4)
+    assert whole.proved and whole.size < whole.greedy
+    assert not cover.proved and _covers(oracle, covered, cover.views)
+    assert 1 <= cover.bound <= whole.size <= cover.size <= cover.greedy
+
+
+def test_labels_do_not_depend_on_the_clock(monkeypatch):
+    """A clock that runs a thousand times fast - a busy machine, as a wall-clock limit sees it -
+    changes no label, proved or not: the limit is a count of nodes."""
+    oracle, covered = _hard_instance(monkeypatch)
+    labels = [solve_cover(oracle, covered, node_limit=limit) for limit in (1, 3, 10**4)]
+    now = [time.perf_counter()]
+
+    def fast_clock() -> float:
+        now[0] += 1000.0
+        return now[0]
+
+    for name in ("perf_counter", "monotonic", "time"):
+        monkeypatch.setattr(time, name, fast_clock)
+    assert [solve_cover(oracle, covered, node_limit=limit) for limit in (1, 3, 10**4)] == labels
+    assert not labels[0].proved and labels[2].proved
 
 
 def test_nothing_left_is_the_empty_cover():
     oracle = ViewOracle(np.eye(3, dtype=bool))
-    assert solve_cover(oracle, oracle.observable.copy(), 10) == Cover((), 0, 0)
+    assert solve_cover(oracle, oracle.observable.copy(), 200) == Cover((), 0, 0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -172,6 +221,24 @@ def cover_shards(tmp_path_factory):
 def test_one_and_two_workers_store_the_same_covers(cover_shards):
     one, two, _ = cover_shards
     assert len(_digests(one)) == 6 and _digests(one) == _digests(two)
+
+
+def test_labels_cut_short_by_the_node_limit_are_the_same_bytes_for_one_and_two_workers(tmp_path, monkeypatch):
+    """With one node per state (and no exact search) most labels are not proved, and still the
+    same everywhere (two threads: the setting patched here reaches them)."""
+    monkeypatch.setattr(setcover, "SEARCH_NODES", 0)
+    sources = builtin_sources()[:2]
+    for workers in (1, 2):
+        config = load_config(SimConfig, SMOKE, ["oracle.cover=true", "oracle.cover_node_limit=1", "views.count=100",
+                                                f"generate.workers={workers}", "episode.runs_per_mesh=2",
+                                                "generate.backend=threading"])
+        generate(sources, tmp_path / str(workers), config)
+    assert len(_digests(tmp_path / "1")) == 2 and _digests(tmp_path / "1") == _digests(tmp_path / "2")
+    unproved = 0
+    for path in (tmp_path / "1").glob("*.h5"):
+        with Shard(path) as shard:
+            unproved += int((shard["cover_bound"] < shard["cover_size"]).sum())
+    assert unproved > 0
 
 
 def test_every_stored_cover_covers_what_its_state_left(cover_shards):
@@ -204,7 +271,7 @@ def test_cover_false_writes_todays_bytes_and_datasets(tmp_path):
     plain, off = tmp_path / "plain", tmp_path / "off"
     generate(sources, plain, load_config(SimConfig, SMOKE, ["generate.workers=1"]))
     generate(sources, off, load_config(SimConfig, SMOKE, ["generate.workers=1", "oracle.cover=false",
-                                                          "oracle.cover_time_limit=10"]))
+                                                          "oracle.cover_node_limit=200"]))
     assert _digests(plain) == _digests(off) and len(_digests(plain)) == 2
     assert list(yaml.safe_load((plain / "config.yaml").read_text())["oracle"]) == ["min_overlap"]
     for path in plain.glob("*.h5"):
@@ -280,7 +347,7 @@ def test_scvp_export_refuses_shards_it_cannot_hold_in_one_line(tmp_path, capsys,
 
 
 def test_bad_cover_settings_are_one_line_errors(capsys):
-    for setting, message in (("oracle.cover_time_limit=0", "oracle.cover_time_limit=0.0: must be > 0 seconds"),
+    for setting, message in (("oracle.cover_node_limit=0", "oracle.cover_node_limit=0: must be >= 1 branch-and-bound node"),
                              ("views.layout=scvp-33", "views.layout='scvp-33': must be one of"),
                              ("views.layout=scvp-32", "views.layout=scvp-32 has 32 views: set views.count=32")):
         assert main(["generate", "--out", "/nonexistent/never", "--set", setting]) == 2
@@ -365,7 +432,7 @@ def test_canonical_search_finds_the_smallest_optimal_set_from_any_optimal_one(se
     optimal = [views for views in itertools.combinations(range(len(oracle)), optimum)
                if _covers(oracle, covered, views)]
     rows = _minimal_rows(oracle, oracle.observable & ~covered)
-    found = _lexicographic_cover(rows, _candidates(rows), optimum, list(optimal[-1]), time.perf_counter() + 30)
+    found = _lexicographic_cover(rows, _candidates(rows), optimum, list(optimal[-1]), setcover.NodeBudget(10**6))
     assert tuple(found) == smallest == optimal[0]
 
 
@@ -373,9 +440,9 @@ def test_the_size_may_drop_by_one_after_a_view_outside_the_cover():
     """Views A = {p0, p1}, B = {p2, p3}, C = {p0, p2}, D = {p1, p3}: the cover of all is {A, B};
     after scanning C (not in it) D alone covers the rest, so the bound opt - 1 must be reachable."""
     oracle = ViewOracle(np.array([[1, 1, 0, 0], [0, 0, 1, 1], [1, 0, 1, 0], [0, 1, 0, 1]], dtype=bool))
-    first = solve_cover(oracle, np.zeros_like(oracle.observable), 10)
+    first = solve_cover(oracle, np.zeros_like(oracle.observable), 200)
     assert first.views == (0, 1) and first.proved
-    label = next_cover(oracle, oracle.visible[2].copy(), first, 2, 10)
+    label = next_cover(oracle, oracle.visible[2].copy(), first, 2, 200)
     assert label.views == (3,) and label.proved
 
 
@@ -384,7 +451,7 @@ def test_setcover_planner_scans_the_plan_most_new_surface_first():
     visible = np.zeros((3, 10), dtype=bool)
     visible[0, :2] = visible[1, 2:4] = visible[2, 4:] = True
     oracle = ViewOracle(visible)
-    planner = SetCoverPlanner(views=[0, 1, 2], time_limit=10)
+    planner = SetCoverPlanner(views=[0, 1, 2], node_limit=200)
     planner.start(0)
     truth = SimpleNamespace(scene=SimpleNamespace(oracle=oracle), covered=np.zeros_like(oracle.observable))
     order = []
