@@ -113,8 +113,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if recording is not None:
         print(f"wrote {recording.path}")
     out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
-                       highlight=int(views[-1]), others=[int(v) for v in views[:-1]],
-                       title=f"{obj.source}: {plural(len(views), 'scan')}", labels=("last scan", "earlier scans"))
+                       scanned=[int(v) for v in views], title=f"{obj.source}: {plural(len(views), 'scan')}")
     print(f"wrote {out}")
     return 0
 
@@ -291,9 +290,25 @@ def _split_counts(split: dict) -> str:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
-    """Recompute a published version's hashes and counts; name every missing, changed or extra shard."""
-    from nbvdata.manifest import verify
+    """Recompute a published version's hashes and counts; name every missing, changed or extra shard.
+    Given shards or a folder of them instead of a manifest: read each whole and name every damaged one."""
+    from nbvdata.manifest import check_shards, verify
 
+    if args.manifest.is_dir() or args.manifest.suffix.lower() in (".h5", ".hdf5"):
+        if args.root is not None or args.content:
+            raise ConfigError("--root and --content belong to a manifest; a folder of shards is checked as it is")
+        started = time.perf_counter()
+        paths = shard_files([args.manifest])
+        problems = check_shards(paths)
+        for problem in problems:
+            print(problem)
+        seconds = time.perf_counter() - started
+        if problems:
+            print(f"{plural(len(problems), 'damaged shard')} of {len(paths)} ({seconds:.1f} s): delete them and run "
+                  "nbvdata generate again (it redoes them), or restore them from a good copy")
+            return 1
+        print(f"ok: {plural(len(paths), 'shard')} read whole, every checksum and value range holds ({seconds:.1f} s)")
+        return 0
     result = verify(args.manifest, args.root, by_content=args.content)
     published, totals = result.published, result.published.content["totals"]
     print(f"{args.manifest}: {published.label}, {plural(totals['shards'], 'shard')}, "
@@ -332,7 +347,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         return _show_sample(args)
     config = load_config(SimConfig, args.config, args.overrides)
     views = view_sphere(config.views)
-    scanned: list[int] = []  # the views scanned from, drawn as orange arrows (none for a grid file)
+    scanned: list[int] = []  # the views scanned from, drawn as green arrows (none for a grid file)
     if args.grid is not None:
         probabilities = _load_grid_file(args.grid, config.grid.size, args.index)
         title = args.grid.name
@@ -353,14 +368,14 @@ def cmd_show(args: argparse.Namespace) -> int:
     if args.highlight is not None:
         highlight = _parse_indices(str(args.highlight), len(views), "--highlight", "120")[0]
     out = render_state(probabilities, config.scene_grid.extent, args.out, views, highlight=highlight, title=title,
-                       others=scanned, labels=("--highlight view", f"scanned views ({len(scanned)})"))
+                       scanned=scanned, labels=("--highlight view", ""))
     print(f"wrote {out}")
     return 0
 
 
 def _show_sample(args: argparse.Namespace) -> int:
-    """Render sample ``--index`` of a shard with its NBV (red), the next best candidates and, when
-    the shard holds point clouds, the state's cloud."""
+    """Render sample ``--index`` of a shard with its NBV (red), the next best candidates (orange),
+    the views its run scanned so far (green) and, when the shard holds point clouds, the state's cloud."""
     from nbvdata.render import render_state
     from nbvdata.shards import Shard
     from nbvdata.views import ViewSet, look_at_rotations
@@ -378,6 +393,11 @@ def _show_sample(args: argparse.Namespace) -> int:
         overlaps = shard.read("overlaps", i) if scored else None
         coverage = shard.read("coverage", i) if shard.has("coverage") else None
         points = shard.cloud(i) if shard.has("points") else None  # the state's cloud
+        scanned = []  # the views its run scanned to reach it (a policy's off-view poses: -1, not drawn)
+        if shard.has("last_view"):
+            runs, steps, last = shard["run"], shard["step"], shard["last_view"]
+            order = np.flatnonzero((runs == run) & (steps <= step))
+            scanned = [int(v) for v in last[order[np.argsort(steps[order], kind="stable")]] if v >= 0]
         config = shard.info.config
         source = shard.info.meshes[0]["source"] if shard.info.meshes else args.grid.stem
     views = ViewSet(positions, look_at_rotations(positions))
@@ -393,7 +413,8 @@ def _show_sample(args: argparse.Namespace) -> int:
     extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
               or SimConfig().scene_grid.extent)
     out = render_state(probabilities, extent, args.out, views, highlight=nbv,
-                       others=ranked[:args.top], title=title, points=points)
+                       others=ranked[:args.top], title=title, points=points, scanned=scanned,
+                       scanned_label="scanned by this state")
     print(f"wrote {out}")
     return 0
 
@@ -478,8 +499,10 @@ def build_parser() -> Parser:
                      help="share of meshes held out for test in the mesh split (default 0.2)")
     pub.set_defaults(func=cmd_publish)
 
-    ver = sub.add_parser("verify", help="check shards against a manifest: missing, changed or extra files")
-    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.2.0.json")
+    ver = sub.add_parser("verify", help="check shards against a manifest (missing, changed or extra files), or "
+                         "read a folder of shards whole (damaged ones)")
+    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.2.0.json; or a "
+                     "folder of shards, or one shard: each read whole, every checksum and value range checked")
     ver.add_argument("--root", type=Path, help="folder holding the shards (default: the one the manifest records, "
                      "relative to the manifest)")
     ver.add_argument("--content", action="store_true",

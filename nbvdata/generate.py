@@ -37,7 +37,8 @@ import numpy as np
 import yaml
 
 from nbvdata import __version__
-from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials, write_atomic
+from nbvdata.claims import (claim, drop_partials, folder_lock, partial_path, sweep_partials, sweep_temporaries,
+                            write_atomic)
 from nbvdata.config import ConfigError, GenerateConfig, MeshConfig, SimConfig
 from nbvdata.episode import Mover, RunRecord, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
 from nbvdata.manifest import find_part_meshes, load_manifest
@@ -182,6 +183,7 @@ def run_unit(unit: Unit, config: SimConfig, out_dir: Path, progress: Callable[[i
             return UnitResult(unit, elsewhere="done")
         shard.unlink(missing_ok=True)  # broken: redone
         drop_partials(out_dir, unit.shard_name)  # a dead process's: the claim is ours
+        sweep_temporaries(out_dir / RERUN_FOLDER, [recording_name(unit)])  # its recording's too
         return _run_claimed(unit, config, out_dir, progress, threads, policy, rerun_runs)
 
 
@@ -251,10 +253,15 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
         result.error = f"{type(error).__name__}: {error}"
     if recorded_runs and result.error is None:
         with timer("record"):
-            record_unit(out_dir / RERUN_FOLDER / Path(unit.shard_name).with_suffix(".rrd").name, scene,
+            record_unit(out_dir / RERUN_FOLDER / recording_name(unit), scene,
                         recorded_runs)
     result.seconds = dict(timer.seconds)
     return result
+
+
+def recording_name(unit: Unit) -> str:
+    """The file name of a unit's recording in ``RERUN_FOLDER``: its shard's, as .rrd."""
+    return Path(unit.shard_name).with_suffix(".rrd").name
 
 
 def record_unit(path: Path, scene: Scene, runs: list[tuple[int, RunRecord]]) -> None:
@@ -410,6 +417,8 @@ def prepare_out_dir(out_dir: Path, config: SimConfig, policy: PolicySource | Non
                 policy_file.unlink(missing_ok=True)  # left by a job killed before it began
             write_atomic(settings, yaml.safe_dump(wanted, sort_keys=False))
     sweep_partials(out_dir)
+    sweep_temporaries(out_dir)
+    sweep_temporaries(out_dir / RERUN_FOLDER)
 
 
 def _policy_key(record: dict | None) -> tuple[str, str] | None:
@@ -428,11 +437,13 @@ def _policy_words(record: dict | None) -> str:
 
 
 def _shard_problem(path: Path) -> str | None:
-    """None for a readable shard, else why not: "absent" or what is wrong with the file."""
+    """None for a whole shard, else why not: "absent" or what is wrong with the file (every dataset
+    is read: its checksums and value ranges, ``Shard.check``)."""
     if not path.exists():
         return "absent"
     try:
-        Shard(path).close()
+        with Shard(path) as shard:
+            shard.check()
     except ShardError as error:
         return str(error)
     return None
@@ -576,6 +587,9 @@ def _drain(ticks, advance: Callable[[int, int], None]) -> None:
         advance(*tick)
 
 
+SCHEDULER_WAIT = 30  # seconds to reach a --scheduler before saying it is not there
+
+
 @contextlib.contextmanager
 def _dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
     """A client of the cluster at ``scheduler``, or of a local cluster of ``workers`` processes."""
@@ -584,7 +598,13 @@ def _dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
     except ImportError:
         raise ConfigError("generate.backend dask needs dask.distributed: pip install 'nbv-regression[dask]'") from None
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_WAIT)
+        except (OSError, TimeoutError) as error:
+            raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_WAIT} s "
+                              f"({type(error).__name__}): start one (dask scheduler) and its workers, or check the "
+                              "address") from None
+        with client:
             yield client
     else:
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,

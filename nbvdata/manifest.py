@@ -402,7 +402,8 @@ def _stays_inside(name: object) -> bool:
 
 @dataclass(frozen=True)
 class Problem:
-    """A shard that is ``missing``, ``truncated``, ``changed``, ``unreadable`` or ``extra``."""
+    """A shard that is ``missing``, ``truncated``, ``changed``, ``unreadable``, ``extra`` or (a folder
+    checked without a manifest) ``damaged``."""
 
     kind: str
     path: str
@@ -447,6 +448,20 @@ def verify(path: str | Path, root: str | Path | None = None, by_content: bool = 
         if extra not in listed:
             problems.append(Problem("extra", extra, "not in the manifest"))
     return Verification(published, problems, time.perf_counter() - start)
+
+
+def check_shards(paths: list[Path]) -> list[Problem]:
+    """Every shard read whole (``Shard.check``: checksums, gzip streams, value ranges): a
+    ``damaged`` problem for each that fails - what ``nbvdata verify`` says of a folder that has no
+    manifest."""
+    problems = []
+    for path in paths:
+        try:
+            with Shard(path) as shard:
+                shard.check()
+        except ShardError as error:
+            problems.append(Problem("damaged", str(path), str(error).removeprefix(f"{path}: ")))
+    return problems
 
 
 def _check_shard(path: Path, entry: dict, by_content: bool = False) -> Problem | None:

@@ -5,6 +5,15 @@ N samples, V candidate views, n = ``grid.size``. Per-sample arrays are chunked o
 chunk and gzip-compressed (level 4); every dataset is written without timestamps, so the same
 data gives the same bytes.
 
+Integrity (shards written by nbvdata 0.1.0 from issue 50 on; ``INTEGRITY``): every chunk of every
+dataset carries HDF5's Fletcher-32 checksum (the per-shard arrays are one chunk each), which
+HDF5 checks at every read, and the ``attributes_sha256`` attribute is the sha256 of the other
+attributes (``attributes_digest``), checked when a shard is opened. Every read also checks the
+values that have a range (``VALUE_RULES``: probabilities and fractions in [0, 1], finite
+coordinates, view indices among the views, palette codes within the palette), so a shard from
+before the checksums, or one damaged in a way no checksum sees, fails in one line too.
+``Shard.check`` reads everything: what ``nbvdata verify`` and a resumed ``generate`` run.
+
 Datasets::
 
     grids          (N, n, n, n) uint8    palette codes (uint16 if a shard has > 256 distinct values);
@@ -85,7 +94,8 @@ imported; absent in the first shards written, which mean "nbvdata generate"), ``
 
 A shard is written under a temporary name and renamed when complete: it is whole or absent.
 A shard damaged later (bytes overwritten or cut off) is read only through ``Shard``, whose every
-read turns HDF5's failure into one ``ShardError`` naming the file and the fix (``reading``).
+read turns HDF5's failure - a checksum, a gzip stream, an address - and every value out of its
+range into one ``ShardError`` naming the file and the fix (``reading``).
 """
 
 from __future__ import annotations
@@ -137,6 +147,15 @@ MOVES = frozenset({"move", "next_view", "next_pose"})  # only in runs off the or
 MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 mean
 COVER = frozenset({"cover", "cover_size", "cover_bound", "cover_greedy"})  # only with oracle.cover
 CLOUDS = frozenset({"points", "points_count", "reference_points"})  # only with state.points > 0
+ATTRIBUTES_DIGEST = "attributes_sha256"  # the attribute that checks the others (module docstring)
+
+# What the values of a dataset must be (module docstring): "probability" and "fraction" in [0, 1],
+# "finite" no NaN or infinity, "view" an index of view_positions (-1 allowed: "view or none"),
+# "code" an index of grid_palette.
+VALUE_RULES = {"grid_palette": "probability", "gains": "fraction", "overlaps": "fraction", "coverage": "fraction",
+               "nbv_pose": "finite", "nbv_position": "finite", "view_positions": "finite", "view_poses": "finite",
+               "points": "finite", "reference_points": "finite", "nbv_index": "view", "last_view": "view or none",
+               "next_view": "view or none", "grids": "code"}
 
 
 class ShardError(ValueError):
@@ -146,16 +165,53 @@ class ShardError(ValueError):
 @contextlib.contextmanager
 def reading(path: Path, what: str = "its data"):
     """Reads of shard ``path`` inside the block: HDF5's failure to read bytes that were overwritten
-    or cut off (OSError: a chunk whose gzip/zlib stream or checksum fails, an address beyond the
-    end of the file; RuntimeError on some metadata) becomes one ``ShardError`` naming the shard,
-    ``what`` could not be read, and the fix."""
+    or cut off (OSError: a chunk whose Fletcher-32 checksum or gzip/zlib stream fails, an address
+    beyond the end of the file; RuntimeError on some metadata) becomes one ``ShardError`` naming the
+    shard, ``what`` could not be read, and the fix."""
     try:
         yield
     except (OSError, RuntimeError) as error:
         reason = (str(error).strip().splitlines() or [type(error).__name__])[0][:100]
-        raise ShardError(f"{path}: damaged, {what} cannot be read (HDF5: {reason}): delete it and run nbvdata "
-                         "generate again, or restore it from its published version (nbvdata verify names every "
-                         "damaged shard)") from None
+        raise damaged(path, f"{what} cannot be read (HDF5: {reason})") from None
+
+
+def damaged(path: Path, what: str) -> ShardError:
+    """The one-line error of a shard whose bytes were damaged: ``what`` is wrong, and the fix."""
+    return ShardError(f"{path}: damaged, {what}: delete it and run nbvdata generate again, or restore it from its "
+                      "published version (nbvdata verify names every damaged shard)")
+
+
+def attributes_digest(attrs) -> str:
+    """sha256 (hex) of a shard's attributes but ``ATTRIBUTES_DIGEST`` itself, by name, each value
+    as plain data (what was written and what h5py reads back give the same text)."""
+    def plain(value):
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        if isinstance(value, np.generic):
+            return value.item()
+        return value.decode() if isinstance(value, bytes) else value
+    values = {key: plain(attrs[key]) for key in sorted(attrs) if key != ATTRIBUTES_DIGEST}
+    return hashlib.sha256(json.dumps(values, sort_keys=True, allow_nan=False).encode()).hexdigest()
+
+
+def value_problem(name: str, values: np.ndarray, views: int, codes: int) -> str | None:
+    """What is wrong with ``values`` read from dataset ``name`` (``VALUE_RULES``; ``views`` V,
+    ``codes`` the palette's length), or None."""
+    rule = VALUE_RULES.get(name)
+    values = np.asarray(values)
+    if rule is None or values.size == 0:
+        return None
+    if rule in ("probability", "fraction", "finite"):
+        if not np.isfinite(values).all():
+            return f"{np.count_nonzero(~np.isfinite(values)):,} values are not finite (NaN or infinity)"
+        if rule != "finite" and not (values.min() >= 0 and values.max() <= 1):
+            return f"values {values.min():g}..{values.max():g} are not all in [0, 1]"
+        return None
+    low, high = (-1 if rule == "view or none" else 0), (codes if rule == "code" else views) - 1
+    if values.min() < low or values.max() > high:
+        what = "palette codes" if rule == "code" else "view indices"
+        return f"{what} {values.min()}..{values.max()} are not all in {low}..{high}"
+    return None
 
 
 class GridPalette:
@@ -212,7 +268,8 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
     rename over ``path``.
 
     ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES``, ``COVER`` and ``CLOUDS``
-    ones may be left out); ``attrs`` every attribute but the version.
+    ones may be left out); ``attrs`` every attribute but the version and the attributes' digest.
+    Every chunk gets a Fletcher-32 checksum (module docstring).
     """
     path = Path(path)
     missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER - CLOUDS)
@@ -225,9 +282,12 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
             f.attrs["schema_version"] = SCHEMA_VERSION
             for key, value in attrs.items():
                 f.attrs[key] = value
+            f.attrs[ATTRIBUTES_DIGEST] = attributes_digest(f.attrs)
             for name in PER_SHARD:
                 if name in arrays:
-                    _written(f.create_dataset(name, data=arrays[name], track_times=False))
+                    data = np.asarray(arrays[name])
+                    _written(f.create_dataset(name, data=data, chunks=data.shape if data.size else None,
+                                              fletcher32=bool(data.size), track_times=False))
             for name in PER_SAMPLE:
                 if name not in arrays:
                     continue
@@ -237,7 +297,8 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
                 chunks = (1,) + data.shape[1:] if count and data.ndim > 1 else None
                 _written(f.create_dataset(name, data=data, chunks=chunks if count else None,
                                           compression="gzip" if count else None,
-                                          compression_opts=4 if count else None, track_times=False))
+                                          compression_opts=4 if count else None, fletcher32=bool(count),
+                                          track_times=False))
             f.flush()
             os.fsync(f.id.get_vfd_handle())
     except BaseException:
@@ -288,6 +349,9 @@ class Shard:
         try:
             with reading(self.path, "its attributes"):
                 self.info = self._check()
+        except (yaml.YAMLError, json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as error:
+            self.file.close()
+            raise damaged(self.path, f"its attributes cannot be read ({type(error).__name__})") from None
         except Exception:
             self.file.close()
             raise
@@ -300,6 +364,8 @@ class Shard:
         if int(version) != SCHEMA_VERSION:
             raise ShardError(f"{self.path}: schema version {int(version)}, this nbvdata reads "
                              f"{SCHEMA_VERSION}: regenerate the shard or install a matching nbvdata")
+        if ATTRIBUTES_DIGEST in attrs and attrs[ATTRIBUTES_DIGEST] != attributes_digest(attrs):
+            raise damaged(self.path, "its attributes do not match their checksum")
         source = str(attrs.get("source", GENERATED))
         config = yaml.safe_load(attrs["config"])
         optional = OPTIONAL if source != GENERATED else frozenset()
@@ -318,9 +384,17 @@ class Shard:
         if wrong:
             raise ShardError(f"{self.path}: {', '.join(wrong)} do not hold {plural(samples, 'sample')}: "
                              "delete it and run nbvdata generate again")
+        self._views = self.file["view_positions"].shape[0]
+        self._codes = self.file["grid_palette"].shape[0]
         return ShardInfo(self.path, samples, config, json.loads(attrs["meshes"]),
                          tuple(int(r) for r in attrs["runs"]), str(attrs["package_version"]),
                          source)
+
+    def check(self) -> None:
+        """Read every dataset whole - each chunk's checksum and gzip stream, every value's range
+        (``VALUE_RULES``): ShardError naming the first damage, else nothing."""
+        for name in self.file:
+            self.read(name)
 
     def __len__(self) -> int:
         return self.info.samples
@@ -335,9 +409,14 @@ class Shard:
 
     def read(self, name: str, index: int | slice | np.ndarray | tuple = ()) -> np.ndarray:
         """Rows ``index`` of dataset ``name`` (default all; an index array must increase), the
-        one way shard data is read: ShardError naming the shard when its bytes are damaged."""
+        one way shard data is read: ShardError naming the shard when its bytes are damaged or its
+        values leave their range (``VALUE_RULES``)."""
         with reading(self.path, f"dataset {name}"):
-            return self.file[name][index]
+            values = self.file[name][index]
+        problem = value_problem(name, values, self._views, self._codes)
+        if problem is not None:
+            raise damaged(self.path, f"dataset {name}: {problem}")
+        return values
 
     def cloud(self, index: int) -> np.ndarray:
         """(n, 3) float32: the points sample ``index``'s run had scanned - all of them when there
@@ -360,8 +439,9 @@ class Shard:
 
     def content_digests(self) -> dict[str, str]:
         """sha256 (first 16 hex digits) of every dataset's values - raw C-order bytes with dtype
-        and shape - and of the attributes but ``package_version``, by name: equal digests mean
-        equal content, whatever HDF5 library, chunking or compression wrote the file."""
+        and shape - and of the attributes but ``package_version`` and the attributes' own checksum,
+        by name: equal digests mean equal content, whatever HDF5 library, chunking, compression or
+        checksums wrote the file (a shard with checksums has the content of one without)."""
         digests = {}
         for name in sorted(self.file):
             data = np.ascontiguousarray(self.read(name))
@@ -369,7 +449,8 @@ class Shard:
             digest.update(data.tobytes())
             digests[name] = digest.hexdigest()[:16]
         attrs = {key: (value.tolist() if isinstance(value, np.ndarray) else value)
-                 for key, value in sorted(self.file.attrs.items()) if key != "package_version"}
+                 for key, value in sorted(self.file.attrs.items())
+                 if key not in ("package_version", ATTRIBUTES_DIGEST)}
         digests["attributes"] = hashlib.sha256(repr(attrs).encode()).hexdigest()[:16]
         return digests
 

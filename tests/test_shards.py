@@ -20,8 +20,10 @@ def _arrays(rng, count: int, views: int = 9, n: int = 32) -> dict[str, np.ndarra
             arrays[name] = rng.integers(0, 3, full, dtype=np.uint8)
         elif name == "mesh_id":
             arrays[name] = np.full(count, b"ab" * 32, dtype="S64")
-        else:
-            arrays[name] = (rng.random(full) * 100).astype(dtype)
+        elif np.issubdtype(dtype, np.integer):  # view indices and counts: within the views, as a reader checks
+            arrays[name] = rng.integers(0, views, full).astype(dtype)
+        else:  # probabilities, fractions, coordinates: in [0, 1)
+            arrays[name] = (rng.random(full) < 0.5) if dtype is bool else rng.random(full).astype(dtype)
     arrays["grid_palette"] = np.array([0.5, 0.12, 0.97], dtype=np.float32)
     arrays["view_positions"] = rng.random((views, 3))
     arrays["view_poses"] = rng.random((views, 6))
