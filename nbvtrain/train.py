@@ -7,12 +7,18 @@ A run folder holds::
                   on a published version, its manifest (name, version, sha256, path, root)
     metrics.csv   one row per epoch (see COLUMNS)
     curves.png    the loss and error curves so far
-    last.pt       weights, optimiser, history after the last epoch (or at Ctrl-C)
+    last.pt       weights, optimiser, history after the last epoch; after a Ctrl-C, the state at the
+                  last completed batch (``partial``: the epoch, its batches done, their summed loss
+                  and torch's random state)
     best.pt       the epoch with the lowest validation loss
 
 Reproducible: the split, the initial weights, each epoch's batch order, its augmentation and
 its dropout masks are all derived from ``seed`` (and the epoch number), so a run resumed from
-an epoch's checkpoint continues exactly as the uninterrupted run would have.
+an epoch's checkpoint continues exactly as the uninterrupted run would have; one stopped by
+Ctrl-C inside an epoch continues from its last completed batch with the same random state, the
+same bits as the uninterrupted run (timings aside). A second Ctrl-C, which may land inside a
+batch, keeps last.pt as it was (the last epoch's, or the last batch saved). A loss that is not
+finite stops the run in one line (``TrainingDiverged``) before anything of it is saved.
 """
 
 from __future__ import annotations
@@ -58,15 +64,39 @@ EVAL_BATCH = 500
 
 
 class Interrupted(Exception):
-    """Training stopped by Ctrl-C after saving ``checkpoint``."""
+    """Training stopped by Ctrl-C; ``saved``: ``checkpoint`` holds the state where it stopped (else
+    it holds the last state saved whole, if any)."""
 
-    def __init__(self, checkpoint: Path, epoch: int):
-        super().__init__(f"interrupted in epoch {epoch + 1}; saved {checkpoint}")
+    def __init__(self, checkpoint: Path, epoch: int, saved: bool = True):
+        where = (f"saved {checkpoint}" if saved else f"{checkpoint} holds the last whole state" if checkpoint.exists()
+                 else "nothing saved yet")
+        super().__init__(f"interrupted in epoch {epoch + 1}; {where}")
         self.checkpoint, self.epoch = checkpoint, epoch
 
 
 class _StopRequested(Exception):
     """Raised by the training loop at a batch boundary after a Ctrl-C."""
+
+
+class TrainingDiverged(ConfigError):
+    """The loss became NaN or infinite: nothing of the step is saved; the message names the fix."""
+
+
+@dataclass
+class EpochProgress:
+    """How far an epoch has come: batches done and their summed loss (times batch sizes)."""
+
+    epoch: int
+    batches: int = 0
+    loss_sum: float = 0.0
+
+    def partial(self) -> dict:
+        """What last.pt records to resume exactly here: this, and torch's random state (dropout)."""
+        state = {"epoch": self.epoch, "batches": self.batches, "loss_sum": self.loss_sum,
+                 "torch_rng": torch.get_rng_state()}
+        if torch.cuda.is_available() and torch.cuda.is_initialized():
+            state["cuda_rng"] = torch.cuda.get_rng_state_all()
+        return state
 
 
 class _StopOnCtrlC:
@@ -154,7 +184,8 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
     round on its training meshes; a shard of a mesh its mesh split holds out is refused: a leak).
     With ``config.init``, the weights start from that checkpoint's. With ``resume``, continue from
     ``out/last.pt`` (same settings but ``epochs``; ``shards`` may be empty to reuse the run's
-    shards, manifest and added shards). Raises ``Interrupted`` after saving on Ctrl-C.
+    shards, manifest and added shards). Raises ``Interrupted`` on Ctrl-C (after saving the state at
+    the last completed batch, for the first one).
     """
     out = Path(out)
     checkpoint = _check_run(out, config, resume)
@@ -190,8 +221,9 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             model = model.to(device)
             optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
             history: list[dict] = []
+            partial = None
         else:
-            model, optimizer, history, views = resumed
+            model, optimizer, history, views, partial = resumed
             if views is not None and (data.view_units is None or views.shape != data.view_units.shape
                                       or not np.allclose(views, data.view_units, atol=1e-9)):
                 raise ConfigError(f"--resume: the run in {out} scores other candidate views than these shards': "
@@ -221,22 +253,34 @@ def fit(shards: list[Path], config: TrainConfig, out: Path, resume: bool = False
             f"{plural(len(val_idx), 'validation sample')} ({split['kind']} split) from "
             f"{plural(len(data.paths), 'shard')}")
         _train(model, optimizer, data, taken, scans, train_idx, val_idx, config, device, out, history, progress,
-               log)
+               log, partial)
         return FitResult(out, len(history), history, parameter_count(model))
     finally:
         data.close()
 
 
-def _restored(config: TrainConfig, checkpoint: dict, out: Path,
-              device: torch.device) -> tuple[NBVNet | ScoreNet, torch.optim.Optimizer, list[dict], np.ndarray | None]:
+def _restored(config: TrainConfig, checkpoint: dict, out: Path, device: torch.device
+              ) -> tuple[NBVNet | ScoreNet, torch.optim.Optimizer, list[dict], np.ndarray | None, dict | None]:
     """The network (``nbvtrain.checkpoint.model_from``: a score network on the views it records),
-    optimiser, history and (a score network's) (V, 3) candidate views of the checkpoint a run
-    resumes from."""
+    optimiser, history, (a score network's) (V, 3) candidate views and the interrupted epoch's
+    progress (``_partial``) of the checkpoint a run resumes from."""
     model = model_from(checkpoint, out / "last.pt", _resume_fix(out)).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     restore(optimizer, checkpoint["optimizer"], out / "last.pt", _resume_fix(out), "optimiser state")
     views = checkpoint["view_units"].double().numpy() if model.task == "scores" else None
-    return model, optimizer, checkpoint["history"], views
+    return model, optimizer, checkpoint["history"], views, _partial(checkpoint, out)
+
+
+def _partial(checkpoint: dict, out: Path) -> dict | None:
+    """The checkpoint's record of an epoch stopped by Ctrl-C (``EpochProgress.partial``), checked, or None."""
+    partial = checkpoint.get("partial")
+    if partial is None:
+        return None
+    kinds = {"epoch": int, "batches": int, "loss_sum": float, "torch_rng": torch.Tensor}
+    if not isinstance(partial, dict) or any(not isinstance(partial.get(key), kind) for key, kind in kinds.items()) \
+            or partial["epoch"] != len(checkpoint["history"]) + 1:
+        raise CheckpointError(f"{out / 'last.pt'}: malformed record of an interrupted epoch; {_resume_fix(out)}")
+    return partial
 
 
 def _view_states(data: ShardSet, config: TrainConfig) -> np.ndarray | None:
@@ -431,7 +475,9 @@ def _start(out: Path, config: TrainConfig) -> None:
 def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet, taken: np.ndarray | None,
            scans: np.ndarray | None,
            train_idx: np.ndarray, val_idx: np.ndarray, config: TrainConfig, device: torch.device, out: Path,
-           history: list[dict], progress: bool, log: Callable[[str], None]) -> None:
+           history: list[dict], progress: bool, log: Callable[[str], None], partial: dict | None = None) -> None:
+    """Train from epoch len(history) + 1 to ``config.epochs``; ``partial``: where a Ctrl-C stopped
+    that first epoch (``EpochProgress.partial``), which it then continues."""
     palette = torch.from_numpy(data.palette).to(device)
     classes = torch.from_numpy(class_positions()).float().to(device)
     loss_fn = nn.MSELoss() if model.task == "regression" else nn.CrossEntropyLoss()
@@ -439,6 +485,7 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
     if first > config.epochs:
         log(f"{out} already has {plural(len(history), 'epoch')} (epochs={config.epochs}): nothing to do")
     best = min((row["val_loss"] for row in history), default=math.inf)
+    done = None
     with _StopOnCtrlC() as stop:
         try:
             for epoch in range(first, config.epochs + 1):
@@ -452,13 +499,22 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                 turns = rng.integers(0, 4, len(order)) if config.augment else np.zeros(len(order), dtype=np.int64)
                 batches = [(order[i:i + config.batch_size], turns[i:i + config.batch_size])
                            for i in range(0, len(order), config.batch_size)]
+                done = EpochProgress(epoch)
+                if partial is not None and partial["epoch"] == epoch:  # continue where Ctrl-C stopped it
+                    done.batches, done.loss_sum = partial["batches"], partial["loss_sum"]
+                    torch.set_rng_state(partial["torch_rng"])
+                    if "cuda_rng" in partial and device.type == "cuda":
+                        torch.cuda.set_rng_state_all(partial["cuda_rng"])
+                    log(f"epoch {epoch}: continuing after batch {done.batches} of {len(batches)}")
                 bar = _bar(len(order), f"epoch {epoch}/{config.epochs}", progress)
-                total = _train_epoch(model, optimizer, data, taken, scans, batches, palette, classes, loss_fn, config,
-                                     device, bar, stop)
+                if bar is not None:
+                    bar.update(sum(len(b[0]) for b in batches[:done.batches]))
+                _train_epoch(model, optimizer, data, taken, scans, batches, palette, classes, loss_fn, config,
+                             device, bar, stop, done)
                 if bar is not None:
                     bar.close()
                 train_seconds = time.perf_counter() - started
-                row = {"epoch": epoch, "train_loss": total / len(order),
+                row = {"epoch": epoch, "train_loss": done.loss_sum / len(order),
                        **_validate(model, data, taken, scans, val_idx, palette, classes, loss_fn, config, device),
                        "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds,
                        "machine": machine(device)}
@@ -473,22 +529,25 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                     f"mae {row['val_mae']:.4f}  angle {row['val_angle_deg']:.1f} deg  "
                     f"gain ratio {format_ratio(row['val_gain_ratio'])}  {row['seconds']:.1f} s")
                 stop.check()
-        except (KeyboardInterrupt, _StopRequested):
-            # Keep the weights trained so far; the interrupted epoch is redone on --resume.
-            _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data))
+        except _StopRequested:  # at a batch boundary: the state there, to continue exactly
+            within = done is not None and done.epoch == len(history) + 1 and done.batches > 0
+            _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data),
+                  partial=done.partial() if within else None)
             raise Interrupted(out / "last.pt", len(history)) from None
+        except KeyboardInterrupt:  # anywhere, perhaps inside a batch: last.pt stays the last state saved whole
+            raise Interrupted(out / "last.pt", len(history), saved=False) from None
 
 
 def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: ShardSet,
                  taken: np.ndarray | None, scans: np.ndarray | None, batches: list[tuple[np.ndarray, np.ndarray]],
                  palette: torch.Tensor,
                  classes: torch.Tensor, loss_fn: nn.Module, config: TrainConfig, device: torch.device, bar,
-                 stop: _StopOnCtrlC) -> float:
-    """One pass over ``batches`` of (indices, quarter turns); the summed loss (times batch sizes).
-    Stops at a batch boundary when ``stop`` saw a Ctrl-C."""
-    total = 0.0
+                 stop: _StopOnCtrlC, done: EpochProgress) -> None:
+    """One pass over ``batches`` of (indices, quarter turns) from batch ``done.batches`` on,
+    counting each in ``done`` (batches, summed loss times batch sizes). Stops at a batch boundary
+    when ``stop`` saw a Ctrl-C; TrainingDiverged at a loss that is not finite, before its step."""
     # closing(): an interrupt stops the prefetch thread here, not at interpreter exit
-    with contextlib.closing(_prefetch(lambda b: _batch(data, *b, model.inputs), batches)) as prepared:
+    with contextlib.closing(_prefetch(lambda b: _batch(data, *b, model.inputs), batches[done.batches:])) as prepared:
         for codes, targets, index, turned in prepared:
             grids = _inputs(codes, palette, model.inputs, device)
             if model.task == "scores":
@@ -499,15 +558,20 @@ def _train_epoch(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, dat
             else:
                 output = model(grids)
                 loss = loss_fn(output, _labels(torch.from_numpy(targets).to(device), classes))
+            value = loss.item()
+            if not math.isfinite(value):
+                raise TrainingDiverged(f"epoch {done.epoch}, batch {done.batches + 1}: the loss is {value} (nothing of "
+                                       "this epoch is saved): check the data (nbvdata verify; values out of range are "
+                                       "refused when read) or lower --lr")
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            total += loss.item() * len(codes)
+            done.batches += 1
+            done.loss_sum += value * len(codes)
             if bar is not None:
                 bar.update(len(codes))
-                bar.set_postfix(loss=f"{loss.item():.4f}")
+                bar.set_postfix(loss=f"{value:.4f}")
             stop.check()
-    return total
 
 
 def learning_rate(config: TrainConfig, epoch: int) -> float:
@@ -647,10 +711,11 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
 
 def _save(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
           history: list[dict], epoch: int, view_radius: float, scene: dict | None = None,
-          view_units: np.ndarray | None = None, points: int | None = None) -> None:
+          view_units: np.ndarray | None = None, points: int | None = None, partial: dict | None = None) -> None:
     """A checkpoint: weights, optimiser, settings, model name, history, the scene it was trained in
     (``nbvtrain.scene``), for a score network its (V, 3) candidate views and for a point network the
-    size of its clouds (``points``); plain data, written atomically."""
+    size of its clouds (``points``); ``partial``: how far the next epoch had come (``EpochProgress``);
+    plain data, written atomically."""
     state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),
              "view_radius": view_radius, "scene": scene, "state_dict": model.state_dict(),
              "optimizer": optimizer.state_dict(), "history": history,
@@ -659,6 +724,8 @@ def _save(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer
         state |= {"view_units": view_units, "target": "one score per candidate view (view_units), higher = better"}
     if model.inputs == "points":
         state |= {"points": points, "inputs": "partial point cloud (points, 3), object frame, metres"}
+    if partial is not None:
+        state["partial"] = partial
     save_checkpoint(path, state)
 
 
@@ -692,25 +759,28 @@ def curves_figure(history: list[dict], title: str):
     from matplotlib.ticker import MaxNLocator
 
     epochs = [row["epoch"] for row in history]
+    dots = {"marker": "o", "markersize": 4} if len(epochs) < 30 else {}  # one epoch is a point, not a line
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
-    left.plot(epochs, [row["train_loss"] for row in history], label="train loss")
-    left.plot(epochs, [row["val_loss"] for row in history], label="val loss")
-    left.plot(epochs, [row["val_mae"] for row in history], label="val MAE (position)", linestyle="--")
+    left.plot(epochs, [row["train_loss"] for row in history], label="train loss", **dots)
+    left.plot(epochs, [row["val_loss"] for row in history], label="val loss", **dots)
+    left.plot(epochs, [row["val_mae"] for row in history], label="val MAE (position)", linestyle="--", **dots)
     left.set_yscale("log")
     left.set_ylabel("loss, MAE (log scale)")
     left.legend()
-    right.plot(epochs, [row["val_angle_deg"] for row in history], color="tab:red", label="val angle (deg)")
+    right.plot(epochs, [row["val_angle_deg"] for row in history], color="tab:red", label="val angle (deg)", **dots)
     right.set_ylabel("angle to the ground-truth NBV (deg)", color="tab:red")
     lines = right.get_lines()
     if not all(math.isnan(row["val_gain_ratio"]) for row in history):
         twin = right.twinx()
-        twin.plot(epochs, [row["val_gain_ratio"] for row in history], color="tab:green", label="val gain ratio")
+        twin.plot(epochs, [row["val_gain_ratio"] for row in history], color="tab:green", label="val gain ratio", **dots)
         twin.set_ylabel("gain of nearest view / best gain", color="tab:green")
         twin.set_ylim(0, 1.02)
         lines += twin.get_lines()
     right.legend(lines, [line.get_label() for line in lines], loc="best")
     for axes in (left, right):
         axes.set_xlabel("epoch")
+        if len(epochs) == 1:  # one epoch: a unit-wide x range around it, not matplotlib's +-0.05
+            axes.set_xlim(epochs[0] - 0.5, epochs[0] + 0.5)
         axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # epochs are whole: no tick at 1.5
     fig.suptitle(title)
     fig.tight_layout()

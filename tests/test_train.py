@@ -145,6 +145,71 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(shards, tmp_path, delay):
     assert len((run / "metrics.csv").read_text().splitlines()) == done + 2
 
 
+@pytest.mark.parametrize("stop_at", [2, 6, 9])
+def test_ctrl_c_inside_an_epoch_then_resume_is_the_uninterrupted_run_bit_for_bit(shards, tmp_path, monkeypatch,
+                                                                                 stop_at):
+    """A real SIGINT after the stop_at-th batch boundary check (4 batches an epoch here, and one
+    check after each epoch's end): inside epoch 1, inside epoch 2, at an epoch's last batch. The
+    resumed run ends with the weights, optimiser state and losses of the run never stopped."""
+    import nbvtrain.train as train
+
+    args = ["--epochs", "3", "--augment", "--dropout", "0.5", *FAST]
+    straight, stopped = tmp_path / "straight", tmp_path / "stopped"
+    assert main(["fit", str(shards), "--out", str(straight), *args]) == 0
+    calls, check = [0], train._StopOnCtrlC.check
+
+    def interrupt_once(stop):
+        calls[0] += 1
+        if calls[0] == stop_at:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the handler runs between bytecodes of the main thread
+        check(stop)
+
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal
+    try:
+        monkeypatch.setattr(train._StopOnCtrlC, "check", interrupt_once)
+        assert main(["fit", str(shards), "--out", str(stopped), *args]) == 130
+    finally:
+        signal.signal(signal.SIGINT, before)
+    monkeypatch.undo()
+    saved = torch.load(stopped / "last.pt", weights_only=True)
+    if stop_at % 5:  # inside an epoch: its progress is saved
+        assert saved["partial"]["batches"] == stop_at % 5 and saved["partial"]["epoch"] == stop_at // 5 + 1
+    assert main(["fit", "--resume", "--out", str(stopped), "--no-progress"]) == 0
+    a, b = (torch.load(run / "last.pt", weights_only=True) for run in (straight, stopped))
+    assert all(torch.equal(a["state_dict"][key], b["state_dict"][key]) for key in a["state_dict"])
+    assert all(torch.equal(x, y) for x, y in zip(_tensors(a["optimizer"]), _tensors(b["optimizer"])))
+    strip = lambda path: [line.split(",")[:8] for line in path.read_text().splitlines()]  # noqa: E731
+    assert strip(straight / "metrics.csv") == strip(stopped / "metrics.csv") and "partial" not in b
+
+
+def _tensors(value) -> list[torch.Tensor]:
+    """Every tensor in a nested state dict, in order."""
+    if isinstance(value, torch.Tensor):
+        return [value]
+    if isinstance(value, dict):
+        return [t for key in sorted(value, key=str) for t in _tensors(value[key])]
+    if isinstance(value, (list, tuple)):
+        return [t for item in value for t in _tensors(item)]
+    return []
+
+
+def test_a_loss_that_is_not_finite_stops_fit_in_one_line(shards, tmp_path, capsys, monkeypatch):
+    """A learning rate that blows the weights up: exit 2 naming the epoch and batch, and nothing of
+    that epoch saved (last.pt stays the last whole epoch's)."""
+    run = tmp_path / "run"
+    assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), *FAST]) == 0
+    import nbvtrain.train as train
+
+    real = train._regression_loss
+    monkeypatch.setattr(train, "_regression_loss", lambda *a, **k: real(*a, **k) * float("nan"))
+    before = (run / "last.pt").read_bytes()
+    assert main(["fit", "--resume", "--epochs", "2", "--out", str(run), "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "epoch 2, batch 1: the loss is nan" in error[0] and "lower --lr" in error[0]
+    assert (run / "last.pt").read_bytes() == before
+
+
 def test_first_ctrl_c_asks_fit_to_stop_and_a_second_interrupts_at_once():
     # Python's own handler, as in a terminal (a runner started with & ignores SIGINT: fit leaves that alone)
     before = signal.signal(signal.SIGINT, signal.default_int_handler)
