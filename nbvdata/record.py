@@ -44,6 +44,7 @@ except ImportError:
 
 import numpy as np
 
+from nbvdata.claims import TEMPORARY_SUFFIX, process_tag
 from nbvdata.episode import NO_MOVE, RunRecord
 from nbvdata.grid import probability
 from nbvdata.scene import Scene
@@ -82,14 +83,15 @@ def gain_colours(gains: np.ndarray, valid: np.ndarray) -> np.ndarray:
 class Recording:
     """One ``.rrd`` file of one or more runs. Written under a temporary name and renamed by
     ``close`` (``with Recording(...) as recording:`` closes it), so a killed job leaves no
-    cut-off recording under the final name; the viewer's layout shows each run's 3D view side by
+    cut-off recording under the final name (its ``.NAME.rrd.HOST-PID.tmp`` is swept by the next
+    job, ``nbvdata.claims.sweep_temporaries``); the viewer's layout shows each run's 3D view side by
     side above the coverage plot."""
 
     def __init__(self, path: str | Path, name: str):
         """``name``: the recording's name in the viewer (a mesh, say)."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._partial = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self._partial = self.path.with_name(f".{self.path.name}.{process_tag()}{TEMPORARY_SUFFIX}")
         self.stream = rr.RecordingStream("nbvdata")
         self.stream.set_log_time_enabled(False)  # one timeline: scan
         self.stream.set_log_tick_enabled(False)

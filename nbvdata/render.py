@@ -1,12 +1,15 @@
 """Headless pictures of a reconstruction state, like the paper's Fig. 1.
 
 Occupied voxels are blue, unknown voxels yellow, a partial point cloud (if given) black dots,
-candidate views grey dots, and highlighted
-views arrows pointing at the object centre (red for the chosen one, orange for others); a legend
-says so, with the voxel counts. Unknown voxels enclosed by others (the inside of an object,
-which no scan reaches) would show no face: then the quarter of the grid facing the viewer is
-cut away, so that the cut shows them, and the legend says so. The PNG is cropped to what is
-drawn.
+candidate views grey dots. Views are arrows pointing at the object centre, one colour one
+meaning in every picture (``show``, ``demo``, ``plan --png``): red the next view (the NBV, a
+planner's answer, a highlighted view), orange the runner-up candidates, green the views scanned
+so far. A legend says so, with the voxel counts. An x, y, z triad at the grid's corner shows the
+orientation (z up). The views are drawn nearer than they are - their directions exact, their
+distances shrunk alike (the legend says by how much) - so the object fills much of the picture
+rather than a fifth of it. Unknown voxels enclosed by others (the inside of an object, which no
+scan reaches) would show no face: then the quarter of the grid facing the viewer is cut away,
+so that the cut shows them, and the legend says so. The PNG is cropped to what is drawn.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ from nbvdata.views import ViewSet  # noqa: E402
 
 OCCUPIED = (0.15, 0.35, 0.85, 1.0)
 UNKNOWN = (1.0, 0.85, 0.1, 0.25)
+NEXT, RUNNER_UP, SCANNED = "red", "orange", (0.1, 0.55, 0.2)  # the arrows' colours, the same in every picture
+AXES_COLOUR = "0.25"
+DRAWN_RADIUS = 1.2  # the farthest view is drawn this many grid sides from the centre
 MARGIN_PX = 8  # blank pixels kept around the drawing, the title and the legend
 VIEW = {"elev": 30, "azim": -60}  # the 3D axes' viewpoint (matplotlib's default): from +x, -y and above
 CUT_AWAY = "front quarter cut away to show the inside"
@@ -45,13 +51,15 @@ def render_state(
     views_label: str = "candidate views",
     candidates: int | None = None,
     points: np.ndarray | None = None,
+    scanned: Sequence[int] = (),
+    scanned_label: str = "scanned views",
 ) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
     The arguments are those of ``draw_state``.
     """
     return save_cropped(draw_state(probabilities, extent, views, highlight, others, title, labels, views_label,
-                                   candidates, points), out)
+                                   candidates, points, scanned, scanned_label), out)
 
 
 def save_cropped(fig: Figure, out: str | Path) -> Path:
@@ -105,19 +113,23 @@ def draw_state(
     views_label: str = "candidate views",
     candidates: int | None = None,
     points: np.ndarray | None = None,
+    scanned: Sequence[int] = (),
+    scanned_label: str = "scanned views",
 ) -> Figure:
     """The figure of a grid state and the view sphere, with a legend (the caller closes it).
 
     probabilities : (n, n, n) float32 in the authors' encoding (0.5 = unknown)
     extent : side of the grid cube in metres (to place the views in grid units)
-    highlight : index into ``views`` of the view drawn as a red arrow
-    others : indices drawn as orange arrows (e.g. the runner-up candidates)
+    highlight : index into ``views`` of the next view, drawn as a red arrow
+    others : indices drawn as orange arrows: the runner-up candidates
     labels : what the red and the orange arrows are, for the legend
     views_label : what the grey dots are, for the legend
     candidates : the first ``candidates`` views are the candidate views, drawn as grey dots; the
         others (e.g. a robot's sensor positions) only as arrows (None: all views are candidates).
         The red arrow's legend names its view index only when it is a candidate.
     points : (P, 3) a partial point cloud in metres, object frame, drawn as black dots
+    scanned : indices of the views scanned so far, drawn as green arrows (``scanned_label`` and
+        their count in the legend)
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -143,6 +155,11 @@ def draw_state(
     def to_grid(points: np.ndarray) -> np.ndarray:
         return np.asarray(points) * scale + n / 2
 
+    shrink = 1.0  # the views drawn nearer, their directions exact (module docstring)
+    if views is not None and len(views.positions):
+        farthest = float(np.linalg.norm(views.positions, axis=1).max()) * scale
+        shrink = min(1.0, DRAWN_RADIUS * n / farthest) if farthest > 0 else 1.0
+
     legend = [Patch(facecolor=OCCUPIED, edgecolor="0.3", label=f"occupied ({occupied.sum()} voxels)"),
               Patch(facecolor=UNKNOWN[:3] + (0.5,), edgecolor="0.3", label=f"unknown ({unknown.sum()})"),
               Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
@@ -155,25 +172,32 @@ def draw_state(
                              label=f"partial cloud ({len(points)} points)"))
     upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
-        positions = to_grid(views.positions)
+        positions = to_grid(views.positions * shrink)
         candidates = len(positions) if candidates is None else candidates
         ax.scatter(*positions[:candidates].T, s=3, c="0.55", depthshade=False)
         legend.append(Line2D([], [], linestyle="", marker="o", markersize=4, color="0.55",
                              label=f"{views_label} ({candidates})"))
-        arrows = [(i, "orange") for i in others] + ([(highlight, "red")] if highlight is not None else [])
+        arrows = ([(i, SCANNED) for i in scanned] + [(i, RUNNER_UP) for i in others]
+                  + ([(highlight, NEXT)] if highlight is not None else []))
         for index, color in arrows:
             start = positions[index]
             arrow = (to_grid(np.zeros(3)) - start) * 0.35
             ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3)
         if highlight is not None:
             which = f" (view {highlight})" if highlight < candidates else ""
-            legend.append(Line2D([], [], color="red", linewidth=2.5, label=labels[0] + which))
+            legend.append(Line2D([], [], color=NEXT, linewidth=2.5, label=labels[0] + which))
         if len(others):
-            legend.append(Line2D([], [], color="orange", linewidth=2.5, label=labels[1]))
+            legend.append(Line2D([], [], color=RUNNER_UP, linewidth=2.5, label=labels[1]))
+        if len(scanned):
+            legend.append(Line2D([], [], color=SCANNED, linewidth=2.5, label=f"{scanned_label} ({len(scanned)})"))
+        if shrink < 1.0:
+            legend.append(Patch(facecolor="none", edgecolor="none",
+                                label=f"views drawn at {100 * shrink:.0f}% of their distance (directions exact)"))
         reach = np.abs(positions - n / 2).max()
         low, high = n / 2 - reach, n / 2 + reach
     else:
         low, high = 0, n
+    _orientation(ax, n)
     bottom = 0 if upper else low  # a dome of views: down to the grid's floor
     ax.set_xlim(low, high)
     ax.set_ylim(low, high)
@@ -182,10 +206,21 @@ def draw_state(
     # sphere of views does not reach (tighten crops what stays blank)
     ax.set_box_aspect((high - low, high - low, high - bottom), zoom=1.3 if views is not None else 1.0)
     ax.set_axis_off()
-    fig.legend(handles=legend, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.legend(handles=legend, loc="lower center", ncol=3 if len(legend) <= 6 else 2, fontsize=8, frameon=False)
     if title:
         fig.text(0.5, 0.99, title, ha="center", va="top", fontsize=10)
     return fig
+
+
+def _orientation(ax, n: int) -> None:
+    """An x, y, z triad just outside the grid's lowest corner (so the grid hides none of it), a
+    quarter of a side long, labelled."""
+    length, origin = n / 4, np.array([-n / 8, -n / 8, 0.0])
+    for axis, name in enumerate("xyz"):
+        tip = np.zeros(3)
+        tip[axis] = length
+        ax.quiver(*origin, *tip, color=AXES_COLOUR, linewidth=1.2, arrow_length_ratio=0.25)
+        ax.text(*(origin + tip * 1.3), name, color=AXES_COLOUR, fontsize=9, ha="center", va="center")
 
 
 # Unit square corners (u, v) of a voxel face, in drawing order.

@@ -52,11 +52,14 @@ def read_npy(path: Path) -> np.ndarray:
 def check_grids(grids: np.ndarray, size: int = 32) -> np.ndarray:
     """(n, n, n) or (B, n, n, n) float probabilities in [0, 1], n = ``size`` -> (B, n, n, n) float32.
 
-    GridError for another shape, an integer or boolean dtype, NaN or values outside [0, 1]."""
+    GridError for another shape, no grid at all (B = 0), an integer or boolean dtype, NaN or values
+    outside [0, 1]."""
     array = np.asarray(grids)
     shape = (size,) * 3
     if array.ndim not in (3, 4) or array.shape[-3:] != shape:
         raise GridError(f"grid has shape {array.shape}, expected {shape} or (B, {', '.join(map(str, shape))})")
+    if array.ndim == 4 and not len(array):
+        raise GridError(f"holds no grid (shape {array.shape}): save at least one, (n, n, n) or (B, n, n, n) with B >= 1")
     if array.dtype.kind != "f":
         raise GridError(f"grid has dtype {array.dtype}, expected {ENCODING}")
     if array.size:

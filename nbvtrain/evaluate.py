@@ -39,6 +39,11 @@ Outputs in the folder ``out``:
                    version's name, version, manifest sha256 and path, and the part evaluated)
     failures.tsv   meshes that could not be used: a ``mesh<TAB>reason`` header, then one row each
                    (only when there are some)
+    tracebacks.txt where a planner raised (a user's policy, say): each mesh's Python traceback
+                   (only when there are some)
+
+When every mesh failed there is nothing to compare: summary.md says so and lists the failures,
+and no plots are drawn.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ import contextlib
 import csv
 import threading
 import time
+import traceback
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,6 +99,7 @@ class EvaluationReport:
 
     rows: list[dict] = field(default_factory=list)
     failures: list[tuple[str, str]] = field(default_factory=list)
+    tracebacks: list[tuple[str, str]] = field(default_factory=list)  # (mesh file, traceback) where a planner raised
     seconds: float = 0.0
     min_overlap: float = SimConfig().oracle.min_overlap
     floors: list[dict] = field(default_factory=list)  # the floors.csv rows
@@ -185,15 +192,21 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     report = EvaluationReport(min_overlap=config.oracle.min_overlap)
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
+    if rerun is not None:  # recordings a killed evaluation left half-written
+        from nbvdata.claims import sweep_temporaries
+
+        sweep_temporaries(Path(rerun))
     with _mesh_runner(workers, bar) as run:
         results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors, rerun)
                                       for source in sources])
-        for source, (rows, floors, failure) in zip(sources, results):
+        for source, (rows, floors, failure, trace) in zip(sources, results):
             report.rows += rows
             report.floors += floors
+            name = str(source.path or source.name)
             if failure is not None:
-                name = str(source.path or source.name)
                 report.failures.append((name, failure.removeprefix(f"{name}: ")))  # the caller prints them
+            if trace is not None:
+                report.tracebacks.append((name, trace))
     bar.close()
     report.seconds = time.perf_counter() - began
     return report
@@ -202,10 +215,11 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
 def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
                   seed: int, floors: bool = True, rerun: Path | None = None,
                   tick: Callable[[int], None] = lambda runs: None,
-                  threads: int = 0) -> tuple[list[dict], list[dict], str | None]:
+                  threads: int = 0) -> tuple[list[dict], list[dict], str | None, str | None]:
     """One mesh's coverage.csv rows (planner by planner, start by start), its floors.csv rows (one
-    per start; none without ``floors``), and why it could not be used (None if it could: a mesh that
-    fails to load, or on which a planner raises, gives no rows). ``tick(runs)`` counts
+    per start; none without ``floors``), why it could not be used (None if it could: a mesh that
+    fails to load, or on which a planner raises, gives no rows) and the planner's traceback (None
+    unless one raised). ``tick(runs)`` counts
     reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
     (parallel workers pass 1). ``rerun``: also write ``rerun``/<mesh>.rrd, every reconstruction
     under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.record``)."""
@@ -216,7 +230,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
         scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id), threads)
     except (MeshError, ValueError, RuntimeError) as error:
         tick(len(planners) * (1 + starts))
-        return [], [], str(error)
+        return [], [], str(error), None
     firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
     floor_rows = [{"mesh": source.stem, "start": number, "start_view": first}
                   | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
@@ -234,11 +248,11 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                     tick((len(planners) - index) * len(firsts) - number)
                     return [], [], (f"planner {planner.name} raised {type(error).__name__} from start view {first}: "
                                     f"{error} (the mesh's rows are left out, so that every planner is compared "
-                                    "on the same meshes)")
+                                    "on the same meshes; tracebacks.txt has where)"), traceback.format_exc()
                 rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
                          for row in run]
                 tick(1)
-    return rows, floor_rows, None
+    return rows, floor_rows, None, None
 
 
 def _recording(folder: Path | None, mesh: str) -> contextlib.AbstractContextManager:
@@ -320,7 +334,10 @@ def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skip
     if report.failures:
         lines = ["mesh\treason\n"] + [f"{name}\t{' '.join(reason.split())}\n" for name, reason in report.failures]
         (out / "failures.tsv").write_text("".join(lines))
-    plot_coverage(report.rows, out / "plots", report.floors)
+    if report.tracebacks:
+        (out / "tracebacks.txt").write_text("".join(f"== {name}\n{trace}\n" for name, trace in report.tracebacks))
+    if report.rows:
+        plot_coverage(report.rows, out / "plots", report.floors)
 
 
 def final_coverage(rows: list[dict], key: str = "coverage") -> dict[tuple[str, str], np.ndarray]:
@@ -375,6 +392,12 @@ def coverage_table(rows: list[dict], planners: list[str], key: str) -> list[str]
 def summary_markdown(report: EvaluationReport, planners: list[str], skipped: list[str]) -> str:
     """The summary: coverage tables after the last scan, the time per NBV and the overlap rule."""
     rows = report.rows
+    if not rows:
+        return "\n".join(["# Closed-loop evaluation: no object evaluated", "",
+                          f"Every mesh failed ({len(report.failures)}), so there is nothing to compare; "
+                          "failures.tsv lists them (and tracebacks.txt where a planner raised).", "",
+                          *[f"- {message}" for message in skipped],
+                          *[f"- mesh {name} failed: {reason}" for name, reason in report.failures]]) + "\n"
     scans = max((row["scan"] for row in rows), default=0)
     starts = len({row["start"] for row in rows})
     lines = [f"# Closed-loop evaluation: {len({r['mesh'] for r in rows})} objects, {scans} scans, "
@@ -483,11 +506,14 @@ def overlap_table(rows: list[dict], planners: list[str], min_overlap: float) -> 
 def plot_coverage(rows: list[dict], folder: Path, floors: list[dict] = ()) -> list[Path]:
     """One PNG per object: coverage (%) against scans, a line per planner (mean over starts,
     shaded from the lowest to the highest start; the legend and title say so), and a dotted line at
-    the floor: the fewest scans that cover all the observable surface (mean over starts, ``floors``)."""
+    the floor: the fewest scans that cover all the observable surface (mean over starts, ``floors``).
+    The x axis spans the scans made; a floor beyond them is named in the legend, not drawn (a
+    torus's 58 scans squeezed the 10 made into a tenth of the width)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
@@ -505,16 +531,21 @@ def plot_coverage(rows: list[dict], folder: Path, floors: list[dict] = ()) -> li
             (line,) = axes.plot(scans, values.mean(axis=0), marker="o", markersize=3, label=planner)
             if len(values) > 1:
                 axes.fill_between(scans, values.min(axis=0), values.max(axis=0), color=line.get_color(), alpha=0.15)
+        made = sorted({scan for starts in planners.values() for start in starts.values() for scan in start})
         sizes = [1 + floor["cover_size"] for floor in floors if floor["mesh"] == mesh]
-        if sizes:
-            axes.axvline(np.mean(sizes), color="0.4", linestyle=":", label="floor: fewest scans to all observable")
+        floor = float(np.mean(sizes)) if sizes else None
+        if floor is not None and floor <= made[-1] + 0.5:
+            axes.axvline(floor, color="0.4", linestyle=":", label="floor: fewest scans to all observable")
         handles = axes.get_legend_handles_labels()[0]
+        if floor is not None and floor > made[-1] + 0.5:
+            handles.append(Line2D([], [], color="0.4", linestyle=":",
+                                  label=f"floor: fewest scans to all observable, {floor:g} (beyond the plot)"))
         title = mesh
         if max(counts) > 1:  # lines are means over the starts, bands their range
             starts = f"{max(counts)} starts" if len(counts) == 1 else "the starts"
             title = f"{mesh}: mean of {starts}"
             handles.append(Patch(color="0.5", alpha=0.25, label=f"shaded: lowest to highest of {starts}"))
-        axes.set(xlabel="scan", ylabel="coverage (%)", title=title, ylim=(0, 100))
+        axes.set(xlabel="scan", ylabel="coverage (%)", title=title, ylim=(0, 100), xlim=(made[0] - 0.5, made[-1] + 0.5))
         axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # scans are whole: no tick at 1.5
         axes.grid(alpha=0.3)
         axes.legend(handles=handles, loc="lower right", fontsize=8)

@@ -441,7 +441,7 @@ def render_plan(result: PlanResult, out: str | Path) -> Path:
 
 def draw_plan(result: PlanResult):
     """The figure of the grid the network saw, in the object frame: the candidate views (grey:
-    a score network's own, else the scene's view sphere), the scans' sensor positions (orange)
+    a score network's own, else the scene's view sphere), the scans' sensor positions (green)
     and the NBV (red; for a score network its candidate view's index). The caller closes it."""
     from nbvdata.render import draw_state
 
@@ -457,8 +457,8 @@ def draw_plan(result: PlanResult):
     scans = range(len(candidates), len(candidates) + len(taken))
     title = f"{result.planner.name}: next-best-view for {Path(result.source).name} (object frame, +z = world up)"
     return draw_state(result.grid, result.config.scene_grid.extent, views,
-                      highlight=len(positions) - 1 if view is None else view, others=scans, title=title,
-                      labels=("next-best-view", f"scans taken ({len(taken)})"), candidates=len(candidates))
+                      highlight=len(positions) - 1 if view is None else view, scanned=list(scans), title=title,
+                      scanned_label="scans taken", candidates=len(candidates))
 
 
 def _text(vector: np.ndarray) -> str:

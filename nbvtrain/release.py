@@ -102,6 +102,18 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
 
     from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
 
+    chosen = {}  # every run read and checked before anything is written: a bad one leaves no --out behind
+    for task, given in runs.items():
+        run, checkpoint = run_of(given)
+        state = load_checkpoint(checkpoint, f"train one with nbvtrain fit --out {run}")
+        if state.get("task") != task:
+            raise ConfigError(f"{run}: a {state.get('task')} network, not a {task} one")
+        try:
+            data = json.loads((run / "data.json").read_text())
+        except (OSError, ValueError) as error:
+            raise ConfigError(f"{run / 'data.json'}: cannot be read ({type(error).__name__}): pass a run folder of "
+                              "nbvtrain fit") from None
+        chosen[task] = run, checkpoint, state, data
     out.mkdir(parents=True, exist_ok=True)
     before = released_files(out)
     try:  # a task released into ``out`` before and not now stays released (named in reference.json)
@@ -113,17 +125,13 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
     sections = {task: earlier[task] for task in answers if task in earlier}
     notes = notes if notes is not None else earlier.get(NOTES, "").split("\n", 1)[-1]  # kept with the models kept
     written = []
-    for task, given in runs.items():
-        run, checkpoint = run_of(given)
-        state = load_checkpoint(checkpoint, f"train one with nbvtrain fit --out {run}")
-        if state.get("task") != task:
-            raise ConfigError(f"{run}: a {state.get('task')} network, not a {task} one")
+    for task, (run, checkpoint, state, data) in chosen.items():
         slim = {key: state[key] for key in KEEP if key in state}
         slim["state_dict"] = {key: value.half() if value.is_floating_point() else value
                               for key, value in state["state_dict"].items()}
         slim["released_from"] = str(checkpoint)
         path = out / f"{state['model']}.pt"
-        data, history = json.loads((run / "data.json").read_text()), _run_history(run, state)
+        history = _run_history(run, state)
         lineage = _lineage(data, state, history)  # before writing: the run may have started from the file it replaces
         save_checkpoint(path, slim)
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}

@@ -21,3 +21,12 @@ def toward_unknown(observation: dict) -> np.ndarray:
 
 def bad(observation: dict) -> str:
     return "left"
+
+
+def crashes(observation: dict) -> int:
+    """A policy with a bug: it raises on every decision."""
+    return _deeper(observation)
+
+
+def _deeper(observation: dict) -> int:
+    raise ZeroDivisionError("a bug in the user's policy")

@@ -16,7 +16,7 @@ def test_demo_writes_a_png(tmp_path, capsys, monkeypatch):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     printed = capsys.readouterr().out
     assert "scan 2:" in printed and "coverage" in printed
-    assert drawn["labels"] == ("last scan", "earlier scans")  # the legend: red is not an NBV here
+    assert len(drawn["scanned"]) == 2 and drawn.get("highlight") is None  # scans green; red is the next view only
 
 
 def _grid(seed: int = 0) -> np.ndarray:
@@ -104,6 +104,18 @@ def test_show_marks_the_views_scanned_and_the_highlighted_one(tmp_path, monkeypa
                              "--out", str(tmp_path / "s.png")], monkeypatch)
     assert "scanned views (2)" in texts and "--highlight view (view 20)" in texts, texts
     assert "candidate views (50)" in texts
+
+
+def test_show_of_a_shard_sample_draws_the_views_its_run_scanned(tmp_path, monkeypatch):
+    from nbvdata.shards import Shard
+
+    assert main(["generate", "--config", "configs/smoke.yaml", "--runs-per-mesh", "1", "--out", str(tmp_path / "d"),
+                 "--no-progress"]) == 0
+    shard = sorted((tmp_path / "d").glob("*.h5"))[0]
+    with Shard(shard) as opened:
+        index = int(np.flatnonzero(opened["step"] == 3)[0])
+    texts = _legend_of_show([str(shard), "--index", str(index), "--out", str(tmp_path / "s.png")], monkeypatch)
+    assert "scanned by this state (3)" in texts and "runner-up candidates" in texts, texts
 
 
 def test_a_highlight_out_of_range_names_highlight(tmp_path, capsys):

@@ -406,6 +406,22 @@ def test_evaluate_runs_a_policy_on_the_envs_observation_in_the_same_table(config
     assert next(seen, None) is None
 
 
+def test_a_policy_that_raises_on_every_mesh_leaves_a_readable_summary_and_its_traceback(mesh_folder, tmp_path):
+    """Every mesh failed: exit 1, summary.md says there is nothing to compare (not "0 objects ...
+    after scan 0"), failures.tsv names each mesh, tracebacks.txt has where the policy raised."""
+    from nbvtrain.cli import main
+
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(mesh_folder), "--planners", "env_policies:crashes", "--scans", "2",
+                 "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 1
+    summary = (out / "summary.md").read_text()
+    assert summary.startswith("# Closed-loop evaluation: no object evaluated") and "after scan 0" not in summary
+    assert "raised ZeroDivisionError" in summary and len((out / "failures.tsv").read_text().splitlines()) == 3
+    traces = (out / "tracebacks.txt").read_text()
+    assert traces.count("== ") == 2 and "in _deeper" in traces and "a bug in the user's policy" in traces
+    assert not (out / "plots").exists()
+
+
 def first_untaken_again(observation: dict, seen: dict) -> int:
     """The env's observation must be the one evaluate gave the policy; then the policy's move."""
     assert observation.keys() == seen.keys() == {"grid", "taken"}

@@ -97,6 +97,18 @@ def test_a_local_dask_cluster_gives_the_same_shards(tmp_path, sources, reference
     _assert_same(_read(tmp_path), reference)
 
 
+def test_a_scheduler_that_does_not_answer_is_one_line(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("dask.distributed", reason="the dask extra is not installed: pip install -e '.[dask]'")
+    import nbvdata.generate as job
+    from nbvdata.cli import main
+
+    monkeypatch.setattr(job, "SCHEDULER_WAIT", 1)
+    assert main(["generate", "--out", str(tmp_path / "out"), "--backend", "dask", "--scheduler", "tcp://127.0.0.1:1",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no Dask scheduler answered within 1 s" in err
+
+
 def test_the_split_into_shards_does_not_change_the_samples(tmp_path, sources, reference):
     generate(sources, tmp_path, _config("generate.workers=1"))  # one shard per mesh
     assert len(list(tmp_path.glob("*.h5"))) == 3

@@ -449,7 +449,7 @@ def _legend(result) -> list[str]:
 
 def test_the_picture_names_the_candidate_view_and_counts_the_scans(scene, checkpoint, tmp_path):
     """The red arrow of a score network's answer names its candidate view (the JSON's "view"); the
-    orange ones are the scans, counted as such, never as candidate views; a regression network's
+    green ones are the scans, counted as such, never as candidate views; a regression network's
     answer is no candidate view and names none. An OctoMap has no scans to draw."""
     scans, poses, _ = scene
     scans_file = _write_scans(tmp_path / "robot", scans, poses)

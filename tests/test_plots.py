@@ -45,6 +45,17 @@ def test_learning_curves_label_every_line_and_axis_and_tick_whole_epochs(gain_ra
         plt.close(figure)
 
 
+def test_one_epoch_of_learning_curves_is_drawn_as_points():
+    """A 1-epoch run: every line is one point, so each has a marker, and the x axis spans that epoch."""
+    figure = curves_figure(_history(1), "nbvnet-3-3")
+    try:
+        lines = [line for axes in figure.axes for line in axes.get_lines()]
+        assert lines and all(line.get_marker() == "o" for line in lines)
+        assert all(axes.get_xlim() == (0.5, 1.5) for axes in figure.axes)
+    finally:
+        plt.close(figure)
+
+
 def _row(planner: str, start: int, scan: int, coverage: float) -> dict:
     return {"mesh": "mug", "planner": planner, "start": start, "scan": scan, "coverage": coverage}
 
@@ -70,3 +81,24 @@ def test_coverage_plots_name_the_shaded_band(tmp_path, monkeypatch):
     one = [row for row in rows if row["start"] == 0]  # one start: no band, nothing to say
     seen = _coverage_figure(one, tmp_path, monkeypatch)
     assert seen["legend"] == ["a", "b"] and seen["title"] == "mug"
+
+
+def test_the_x_axis_spans_the_scans_made_and_a_floor_beyond_them_is_named(tmp_path, monkeypatch):
+    rows = [_row("a", 0, scan, 0.1 * scan) for scan in range(1, 11)]
+    limits, axes_set = {}, plt.Axes.set
+
+    def spy(axes, **kwargs):
+        limits.update(kwargs)
+        return axes_set(axes, **kwargs)
+
+    monkeypatch.setattr(plt.Axes, "set", spy)
+    far = [{"mesh": "mug", "start": 0, "cover_size": 57}]
+    seen = {}
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *a, **k: (seen.update(legend=_legend_texts(figure)),
+                                                                      save(figure, *a, **k)))
+    plot_coverage(rows, tmp_path, far)
+    assert limits["xlim"] == (0.5, 10.5)
+    assert seen["legend"] == ["a", "floor: fewest scans to all observable, 58 (beyond the plot)"]
+    plot_coverage(rows, tmp_path, [{"mesh": "mug", "start": 0, "cover_size": 6}])
+    assert seen["legend"] == ["a", "floor: fewest scans to all observable"] and limits["xlim"] == (0.5, 10.5)

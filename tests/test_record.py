@@ -127,6 +127,27 @@ def test_generate_records_the_first_runs_and_writes_the_same_shards(tmp_path, ca
             assert np.isclose(entities["/run_0000/coverage"][step]["Scalars:scalars"][0], 100 * coverage[step - 1])
 
 
+def test_a_killed_writers_half_recordings_are_swept(tmp_path, capsys):
+    """A recording worker killed mid-file leaves ``.NAME.rrd.HOST-PID.tmp``: the next job deletes
+    those of dead processes on this machine (and a unit's own when it claims the unit), never a
+    live process's or another machine's."""
+    from nbvdata.claims import host_tag
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(gone.stdout)
+    out = tmp_path / "out"
+    (out / "rerun").mkdir(parents=True)
+    dead = out / "rerun" / f".x.rrd.{host_tag()}-{dead_pid}.tmp"
+    live = out / "rerun" / f".y.rrd.{host_tag()}-{os.getpid()}.tmp"
+    other = out / "rerun" / f".z.rrd.another-host-{dead_pid}.tmp"
+    for path in (dead, live, other):
+        path.write_bytes(b"half a recording")
+    assert main(["generate", "--config", str(SMOKE), "--out", str(out), "--runs-per-mesh", "1", "--rerun-runs", "1",
+                 "--set", "episode.max_scans=2", "--no-progress"]) == 0
+    assert not dead.exists() and live.exists() and other.exists()
+    assert not [path for path in (out / "rerun").iterdir() if path.suffix == ".tmp" and path not in (live, other)]
+
+
 def test_evaluate_records_every_planner_side_by_side(tmp_path, capsys):
     pytest.importorskip("torch", reason="nbvtrain needs torch")
     from nbvtrain.cli import main as nbvtrain_main

@@ -138,6 +138,13 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert "released: the best epoch (lowest validation loss), epoch 1." in card_section(out / CARD, "regression")
     assert nbvtrain(["release", "--scores", str(tmp_path / "notes.md"), "--out", str(out)]) == 2
     assert "neither a run folder of nbvtrain fit nor a checkpoint file inside one" in capsys.readouterr().err
+    # bad run folders: one line, and no --out folder made (before issue 50 an empty one was left)
+    empty_run = tmp_path / "empty-run"
+    empty_run.mkdir()
+    for argv in (["--scores", str(tmp_path / "notes.md")], ["--scores", str(empty_run)],
+                 ["--scores", str(runs["nbvscore-3"]), "--regression", str(runs["nbvscore-3"])]):
+        assert nbvtrain(["release", *argv, "--out", str(tmp_path / "never")]) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1 and not (tmp_path / "never").exists()
 
 
 def card_section(card: Path, task: str) -> str:

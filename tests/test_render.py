@@ -58,11 +58,57 @@ def test_the_legend_names_every_colour_and_arrow():
     texts = _legend(fig)
     plt.close(fig)
     assert texts == ["occupied (64 voxels)", "unknown (152)", "free (3880, not drawn)", "candidate views (40)",
-                     "next-best-view (view 3)", "runner-up candidates"]
-    fig = draw_state(_grid(), 0.3, views, labels=("last scan", "earlier scans"))
+                     "next-best-view (view 3)", "runner-up candidates",
+                     "views drawn at 90% of their distance (directions exact)"]
+    fig = draw_state(_grid(), 0.3, views)
     texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
     plt.close(fig)
-    assert len(texts) == 5 and not any("scan" in text for text in texts)  # no arrows, no arrow entries
+    assert len(texts) == 6 and not any("view (" in text for text in texts)  # no arrows, no arrow entries
+
+
+def _arrow_colours(fig) -> list[tuple]:
+    """The RGB of every arrow (quiver) drawn, the orientation triad's included."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    return [tuple(np.round(c.get_color()[0][:3], 3)) for c in fig.axes[0].collections
+            if isinstance(c, Line3DCollection)]
+
+
+def test_one_colour_one_meaning_in_every_picture():
+    """Red the next view, orange the runner-ups, green the scanned views, whoever draws them;
+    an x, y, z triad; the legend names each."""
+    from matplotlib.colors import to_rgb
+
+    from nbvdata.render import AXES_COLOUR, NEXT, RUNNER_UP, SCANNED
+
+    views = view_sphere(ViewConfig(count=40))
+    fig = draw_state(_grid(), 0.3, views, highlight=3, others=[5, 7], scanned=[0, 1, 2])
+    colours, texts = _arrow_colours(fig), _legend(fig)
+    labels = [text.get_text() for text in fig.axes[0].texts]
+    plt.close(fig)
+    rgb = lambda colour: tuple(np.round(to_rgb(colour), 3))  # noqa: E731
+    assert colours.count(rgb(SCANNED)) == 3 and colours.count(rgb(RUNNER_UP)) == 2 and colours.count(rgb(NEXT)) == 1
+    assert colours.count(rgb(AXES_COLOUR)) == 3 and labels == ["x", "y", "z"]
+    assert "scanned views (3)" in texts and "runner-up candidates" in texts and "next-best-view (view 3)" in texts
+
+
+def test_the_views_are_drawn_nearer_so_the_object_fills_the_picture():
+    """Views at 0.4 m around a 0.15 m cube would leave the grid a fifth of the width: they are
+    drawn at DRAWN_RADIUS grid sides, directions exact, and the legend says how much nearer."""
+    from nbvdata.render import DRAWN_RADIUS
+
+    views = view_sphere(ViewConfig(count=40))
+    fig = draw_state(_grid(), 0.15, views)
+    dots, texts = fig.axes[0].collections[1]._offsets3d, _legend(fig)
+    low, high = fig.axes[0].get_xlim()
+    plt.close(fig)
+    drawn = np.stack(dots, axis=1) - 8  # the 16-voxel grid's centre
+    assert np.allclose(np.linalg.norm(drawn, axis=1), DRAWN_RADIUS * 16)
+    unit = views.positions / np.linalg.norm(views.positions, axis=1, keepdims=True)
+    assert np.allclose(drawn / np.linalg.norm(drawn, axis=1, keepdims=True), unit)
+    shown = round(100 * DRAWN_RADIUS * 16 / (0.4 * 16 / 0.15))
+    assert (high - low) <= 2 * DRAWN_RADIUS * 16 + 1e-9
+    assert f"views drawn at {shown}% of their distance (directions exact)" in texts
 
 
 def test_unknown_voxels_inside_the_object_are_shown_by_a_cut_away():
