@@ -501,7 +501,7 @@ def build_parser() -> Parser:
 
     ver = sub.add_parser("verify", help="check shards against a manifest (missing, changed or extra files), or "
                          "read a folder of shards whole (damaged ones)")
-    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.2.0.json; or a "
+    ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.3.0.json; or a "
                      "folder of shards, or one shard: each read whole, every checksum and value range checked")
     ver.add_argument("--root", type=Path, help="folder holding the shards (default: the one the manifest records, "
                      "relative to the manifest)")

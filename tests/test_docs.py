@@ -113,7 +113,7 @@ def test_the_link_check_catches_a_broken_file_heading_and_exit_from_docs(tmp_pat
     assert "no such file" in _link_problems(page, "no-such-page.md")[0]
     assert len(_link_problems(page, "oracle.md#no-such-heading")) == 2
     assert "outside docs/" in _link_problems(page, "../configs/default.yaml")[0]
-    assert _link_problems(page, "../manifests/builtin-shapes-1.2.0.png") == []
+    assert _link_problems(page, "../manifests/builtin-shapes-1.3.0.png") == []
     assert _link_problems(page, "../README.md#quick-start") == []
     assert "home page" in _link_problems(ROOT / "README.md", "configs/default.yaml")[0]
     # Where MkDocs and GitHub would give a heading different anchors, a link to it fails one of the two.
