@@ -29,7 +29,7 @@ import numpy as np
 
 from nbvdata.config import SimConfig, ViewConfig
 from nbvdata.mesh import load_mesh
-from nbvdata.sensor import MeshScanner, _plane_distances
+from nbvdata.sensor import MeshScanner, plane_distances
 from nbvdata.views import view_sphere
 
 
@@ -55,7 +55,7 @@ def census(path: Path, config: SimConfig, ulps: int, seed: int) -> dict[str, int
         rays, cast, triangles, t_cast = scanner._distances(positions, rotations)
         others = embree(nudge(rays[cast], ulps, rng))
         t_other = np.empty(len(cast))
-        _plane_distances(rays, cast, others, vertices, faces, t_other)
+        plane_distances(rays, cast, others, vertices, faces, t_other)
         cloud = scanner._cloud_distances(rays, cast, triangles, t_cast)
         scanner._triangles = lambda some: embree(nudge(some, ulps, rng))  # the second casts too
         try:

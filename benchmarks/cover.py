@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import generate, mesh_sources
+from nbvdata.generate import generate
+from nbvdata.sources import mesh_sources
 from nbvdata.shards import Shard
 
 TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "train"

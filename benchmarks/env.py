@@ -37,7 +37,8 @@ import numpy as np
 from nbvdata.config import SimConfig, load_config
 from nbvdata.env import ReconstructEnv
 from nbvdata.episode import start_view
-from nbvdata.generate import builtin_sources, mesh_sources, plan_units, run_unit
+from nbvdata.generate import plan_units, run_unit
+from nbvdata.sources import builtin_sources, mesh_sources
 from nbvdata.mesh import find_meshes
 from nbvdata.shards import Shard
 

@@ -34,7 +34,7 @@ from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
 from nbvtrain.planners import InfoGainPlanner, LearnedPlanner, Observation, OraclePlanner, RandomPlanner
 from nbvtrain.release import NoReleasedModel, released_checkpoint
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from reference_infogain import sampled_scores  # noqa: E402  (the tests' slow reference)
@@ -92,13 +92,13 @@ def main() -> None:
         checkpoint = Path(tmp) / "nbvnet-4-5.pt"
         torch.manual_seed(0)
         model = build_model("nbvnet-4-5")
-        _save(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(), [], 0, config.views.radius)
+        save_training_state(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(), [], 0, config.views.radius)
         regression = LearnedPlanner(checkpoint, config.views.radius, "regression")
         scores = {}
         for name in ("nbvscore-fc3", "nbvscore-3"):
             path = Path(tmp) / f"{name}.pt"
             model = build_model(name, views=scene.views.unit_positions)
-            _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0,
+            save_training_state(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0,
                   config.views.radius, None, scene.views.unit_positions)
             scores[f"scores ({name})"] = (LearnedPlanner(path, config.views.radius, "scores", scene.views), 5.0)
         try:

@@ -19,7 +19,8 @@ from collections import defaultdict
 from pathlib import Path
 
 from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import Report, builtin_sources, generate, mesh_sources
+from nbvdata.generate import Report, generate
+from nbvdata.sources import builtin_sources, mesh_sources
 
 PAPER_TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "paper_train.txt"
 

@@ -52,7 +52,7 @@ def fps_table(meshes: Path, points: int) -> None:
 
     from nbvdata.cloud import ScannedCloud, farthest_points, farthest_points_reference
     from nbvdata.config import SimConfig
-    from nbvdata.generate import mesh_sources
+    from nbvdata.sources import mesh_sources
     from nbvdata.sensor import MeshScanner
     from nbvdata.views import view_sphere
 

@@ -21,7 +21,7 @@ from nbvdata.views import Pose
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import MODELS, build_model
 from nbvtrain.predict import Predictor
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 
 def median_ms(call, grids: np.ndarray, repeats: int) -> float:
@@ -49,7 +49,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         checkpoint = Path(tmp) / "model.pt"
-        _save(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(model=args.model), [], 0, 0.4)
+        save_training_state(checkpoint, model, torch.optim.Adam(model.parameters()), TrainConfig(model=args.model), [], 0, 0.4)
         predictor = Predictor(checkpoint)
 
     def eager(grid: np.ndarray) -> Pose:

@@ -17,7 +17,7 @@ The random row is the mean gain ratio of a uniformly random unscanned view. The 
 (``nbvtrain evaluate``) decides; this says why it goes as it does. ``--shards DIR`` takes the
 states of DIR instead of the run's validation states: e.g. a policy's own rollout on the validation
 objects (``nbvdata generate --manifest M --part val --policy CKPT``), where a state reached through
-a pose counts that scan as its nearest candidate view (``nbvtrain.data.nearest_views``).
+a pose counts that scan as its nearest candidate view (``nbvtrain.training_data.nearest_views``).
 
     python benchmarks/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0] [--shards DIR]
 """
@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from nbvdata.shards import shard_files
-from nbvtrain.data import load_shards, load_view_states, to_grids
+from nbvtrain.training_data import load_shards, load_view_states, to_grids
 from nbvtrain.metrics import gain_ratio, nearest_view, unit
 from nbvtrain.predict import Predictor
 

@@ -20,7 +20,8 @@ from collections import defaultdict
 from pathlib import Path
 
 from nbvdata.config import load_config, SimConfig
-from nbvdata.generate import builtin_sources, generate
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources
 from nbvdata.policy import PolicySource
 
 
@@ -29,12 +30,12 @@ def _checkpoint(name: str, folder: Path) -> Path:
 
     from nbvtrain.config import TrainConfig
     from nbvtrain.models import build_model
-    from nbvtrain.train import _save
+    from nbvtrain.train import save_training_state
 
     torch.manual_seed(0)
     model = build_model(name)
     path = folder / f"{name}.pt"
-    _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4)
+    save_training_state(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4)
     return path
 
 

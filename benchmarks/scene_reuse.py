@@ -16,17 +16,17 @@ import argparse
 import hashlib
 import statistics
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import nbvdata.generate as job
+from nbvdata.sources import builtin_sources
 from nbvdata.config import SimConfig, load_config
 
 
 def _job(config: SimConfig, sources: list, cache_size: int) -> tuple[float, float, dict[str, str]]:
     """(wall seconds, seconds in the scene phase, shard sha256s) of one job from a cold cache."""
-    job.SCENE_CACHE_SIZE, job._SCENES = cache_size, threading.local()
+    job.clear_scene_caches(cache_size)
     with tempfile.TemporaryDirectory(prefix="nbv-scene-reuse-") as out:
         started = time.perf_counter()
         report = job.generate(sources, Path(out), config, show_progress=False)
@@ -45,7 +45,7 @@ def main() -> None:
     args = parser.parse_args()
     config = load_config(SimConfig, None, ["generate.workers=1", "generate.runs_per_shard=1",
                                            f"episode.runs_per_mesh={args.runs_per_mesh}"])
-    sources = job.builtin_sources(config.mesh)[:args.meshes]
+    sources = builtin_sources(config.mesh)[:args.meshes]
     times: dict[str, list[tuple[float, float]]] = {"before": [], "after": []}
     digests, reuse = {}, job.SCENE_CACHE_SIZE
     for _ in range(args.repeats):

@@ -20,16 +20,15 @@ import time
 from pathlib import Path
 
 import h5py
-import numpy as np
 
 from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import builtin_sources, generate
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources
 from nbvdata.shards import ATTRIBUTES_DIGEST, PER_SAMPLE, PER_SHARD, SCHEMA_VERSION, Shard, write_shard
 
 
 def _without_checksums(path: Path, arrays: dict, attrs: dict) -> None:
     """A shard as ``write_shard`` wrote it before the checksums."""
-    count = len(arrays["nbv_index"])
     with h5py.File(path, "w", libver=("earliest", "v110")) as f:
         f.attrs["schema_version"] = SCHEMA_VERSION
         for key, value in attrs.items():

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from nbvdata.shards import shard_files
-from nbvtrain.data import load_shards, load_view_states, rotate_quarter_turns, to_grids
+from nbvtrain.training_data import load_shards, load_view_states, rotate_quarter_turns, to_grids
 from nbvtrain.models import MODELS, build_model
 from nbvtrain.scores import score_loss
 

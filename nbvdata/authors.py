@@ -34,6 +34,7 @@ import yaml
 from numpy.lib import format as npy_format
 
 from nbvdata import __version__
+from nbvdata.errors import UserError
 from nbvdata.shards import PARTIAL_SUFFIX, GridPalette, Shard, ShardError, write_shard
 from nbvdata.text import plural
 
@@ -47,7 +48,7 @@ DATASET = "nbv-regression-2019 (Vasquez-Gomez et al., GPL-3.0)"
 EXPECTED = {ROW: ("grids", "dataset_volumes_regression"), 6: ("poses", "dataset_pose")}  # columns: kind, file stem
 
 
-class LegacyError(ValueError):
+class AuthorsDataError(UserError):
     """An input the importer cannot use; the one-line message names the file and the fix."""
 
 
@@ -63,7 +64,7 @@ class NpyRows:
         kind, stem = EXPECTED[columns]
         self._fix = f"pass the authors' {stem}.npy or the zip that holds it"
         if not self.path.is_file():
-            raise LegacyError(f"{self.path}: no such file: {self._fix}")
+            raise AuthorsDataError(f"{self.path}: no such file: {self._fix}")
         self._zip = None
         if zipfile.is_zipfile(self.path) or self.path.suffix.lower() == ".zip":
             self._file = self._open_member()
@@ -85,16 +86,16 @@ class NpyRows:
                        if name.lower().endswith(".npy") and not name.startswith("__MACOSX/")]
             if len(members) != 1:
                 found = ", ".join(self._zip.namelist()) or "nothing"
-                raise LegacyError(f"{self.path}: the zip holds {len(members) or 'no'} .npy files ({found}), "
+                raise AuthorsDataError(f"{self.path}: the zip holds {len(members) or 'no'} .npy files ({found}), "
                                   f"expected one: {self._fix}")
             self.name, self.label = Path(members[0]).name, f"{self.path}:{members[0]}"
             return self._zip.open(members[0])
         except (zipfile.BadZipFile, NotImplementedError, OSError) as error:
             if self._zip is not None:
                 self._zip.close()
-            raise LegacyError(f"{self.path}: not a readable zip file ({error}): download it again, or pass "
+            raise AuthorsDataError(f"{self.path}: not a readable zip file ({error}): download it again, or pass "
                               "the unpacked .npy") from None
-        except LegacyError:
+        except AuthorsDataError:
             self._zip.close()
             raise
 
@@ -106,10 +107,10 @@ class NpyRows:
             read = npy_format.read_array_header_1_0 if version == (1, 0) else npy_format.read_array_header_2_0
             shape, fortran_order, dtype = read(self._file)
         except (ValueError, EOFError) as error:
-            raise LegacyError(f"{self.label}: not a .npy array ({error}): {self._fix}") from None
+            raise AuthorsDataError(f"{self.label}: not a .npy array ({error}): {self._fix}") from None
         if dtype.kind != "f" or dtype.itemsize != 8 or fortran_order or len(shape) != 2 or shape[1] != self.columns:
             order = "Fortran-order" if fortran_order else "C-order"
-            raise LegacyError(f"{self.label}: holds a {order} {shape} {dtype} array, expected C-order float64 "
+            raise AuthorsDataError(f"{self.label}: holds a {order} {shape} {dtype} array, expected C-order float64 "
                               f"(N, {self.columns}) {kind}: {self._fix}")
         return shape[0], dtype
 
@@ -121,10 +122,10 @@ class NpyRows:
             try:
                 piece = self._file.read(min(len(view) - filled, READ_BYTES))
             except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as error:
-                raise LegacyError(f"{self.label}: corrupt data after row {self._done} ({error}): download it "
+                raise AuthorsDataError(f"{self.label}: corrupt data after row {self._done} ({error}): download it "
                                   "again") from None
             if not piece:
-                raise LegacyError(f"{self.label}: truncated: the header promises {plural(self.rows, 'row')}, the "
+                raise AuthorsDataError(f"{self.label}: truncated: the header promises {plural(self.rows, 'row')}, the "
                                   f"data end in row {self._done + filled // (self.columns * 8)}: download or unpack "
                                   "it again")
             view[filled:filled + len(piece)] = piece
@@ -242,7 +243,7 @@ def _complete(path: Path, source: str) -> bool:
     except ShardError:
         return False
     if found != source:
-        raise LegacyError(f"{path}: holds {found!r}, this import writes {source!r}: use a new --out folder "
+        raise AuthorsDataError(f"{path}: holds {found!r}, this import writes {source!r}: use a new --out folder "
                           "or delete the old shards")
     return True
 
@@ -280,7 +281,7 @@ def import_legacy(volumes: str | Path, poses: str | Path, out_dir: str | Path, r
         pose_rows = stream.read(stream.rows)
     with NpyRows(volumes, ROW) as grids:
         if grids.rows != len(pose_rows):
-            raise LegacyError(f"{grids.label} holds {plural(grids.rows, 'grid')} but {Path(poses)} holds "
+            raise AuthorsDataError(f"{grids.label} holds {plural(grids.rows, 'grid')} but {Path(poses)} holds "
                               f"{plural(len(pose_rows), 'pose')}: pass the volumes and poses of the same dataset")
         total = grids.rows if limit is None else min(limit, grids.rows)
         views, nbv_index = distinct_views(pose_rows[:, :3])

@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nbvdata import shards as shard_schema  # noqa: E402
-from nbvdata.claims import write_atomic  # noqa: E402
+from nbvdata.files import write_atomic  # noqa: E402
 from nbvdata.config import OracleConfig, SimConfig, from_dict  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import COVER, GENERATED, Shard  # noqa: E402

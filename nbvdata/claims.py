@@ -18,16 +18,14 @@ bytes each): delete ``DIR/.locks`` when no job runs, if they are in the way.
 from __future__ import annotations
 
 import contextlib
-import os
-import re
-import socket
 from collections import defaultdict
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Iterator
 
 from filelock import FileLock, Timeout
 
 from nbvdata.config import ConfigError
+from nbvdata.files import process_tag
 from nbvdata.shards import PARTIAL_SUFFIX
 
 LOCKS_DIR = ".locks"
@@ -73,59 +71,9 @@ def claim(out_dir: Path, shard_name: str) -> Iterator[bool]:
         lock.release()
 
 
-def process_tag() -> str:
-    """HOST-PID: a name part no other process, on this machine or another, uses."""
-    return host_tag() + f"-{os.getpid()}"
-
-
-def host_tag() -> str:
-    """This machine's name as ``process_tag`` spells it."""
-    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())
-
-
-def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` of this machine is running."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def partial_path(shard: Path) -> Path:
     """Where this process writes ``shard`` before renaming it: a name no other process uses."""
     return shard.with_name(f"{shard.name}.{process_tag()}{PARTIAL_SUFFIX}")
-
-
-TEMPORARY_SUFFIX = ".tmp"
-
-
-def write_atomic(path: Path, data: str | bytes) -> None:
-    """Replace ``path`` by a file holding ``data``, whole or not at all: written under a hidden
-    name of this process's own, then renamed, so readers and other writers never see a part."""
-    temporary = path.with_name(f".{path.name}.{process_tag()}{TEMPORARY_SUFFIX}")
-    if isinstance(data, str):
-        temporary.write_text(data, encoding="utf-8")
-    else:
-        temporary.write_bytes(data)
-    os.replace(temporary, path)
-
-
-def sweep_temporaries(folder: Path, dead: Sequence[str] = ()) -> list[Path]:
-    """Delete the hidden temporary files ``.NAME.HOST-PID.tmp`` (``write_atomic``'s, a Rerun
-    recording's) of ``folder`` whose writer is gone: those of the files named in ``dead`` (whose
-    writer is known dead, e.g. a unit claimed now) from any machine, and the others whose process,
-    on this machine, no longer runs. Returns the files deleted."""
-    swept = []
-    for path in Path(folder).glob(f".*.*{TEMPORARY_SUFFIX}"):
-        name, _, tag = path.name[1:].removesuffix(TEMPORARY_SUFFIX).rpartition(".")
-        host, _, pid = tag.rpartition("-")
-        if name in dead or (host == host_tag() and pid.isdigit() and not process_alive(int(pid))):
-            path.unlink(missing_ok=True)
-            swept.append(path)
-    return swept
 
 
 def shard_of_partial(name: str) -> str:

@@ -19,10 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata import __version__
-from nbvdata.commandline import Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int
+from nbvdata.commandline import (Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int,
+                                 run_command)
 from nbvdata.config import ConfigError, SimConfig, load_config
-from nbvdata.legacy import LegacyError
-from nbvdata.mesh import MeshError, ObjectMesh, load_mesh
+from nbvdata.errors import UserError
+from nbvdata.mesh import ObjectMesh, load_mesh
 from nbvdata.oracle import pack_bits
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
@@ -52,8 +53,8 @@ Your meshes: nbvdata generate --meshes DIR (obj, ply, off, stl, glb, gltf; searc
 'nbvdata COMMAND --help' lists a command's options."""
 
 
-class UsageError(Exception):
-    """A user error the command reports in one line."""
+class UsageError(UserError):
+    """A command's arguments that do not fit together; the one-line message names the fix."""
 
 
 def _add_config_options(parser: argparse.ArgumentParser) -> None:
@@ -119,9 +120,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _record_module(flag: str):
-    """``nbvdata.record``, or a UsageError naming the install command when rerun-sdk is missing."""
+    """``nbvdata.rerun``, or a UsageError naming the install command when rerun-sdk is missing."""
     try:
-        import nbvdata.record as record
+        import nbvdata.rerun as record
     except ImportError as error:
         raise UsageError(f"{flag}: {error}") from None
     return record
@@ -129,7 +130,8 @@ def _record_module(flag: str):
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
-    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, builtin_sources, generate, mesh_sources, part_sources
+    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, generate
+    from nbvdata.sources import builtin_sources, mesh_sources, part_sources
     from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
@@ -204,7 +206,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 def cmd_import_legacy(args: argparse.Namespace) -> int:
     """Stream the authors' published dataset (.zip or .npy) into shards; resumes an interrupted import."""
-    from nbvdata.legacy import import_legacy
+    from nbvdata.authors import import_legacy
 
     try:
         report = import_legacy(args.volumes, args.poses, args.out, args.rows_per_shard, args.limit,
@@ -252,7 +254,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def cmd_publish(args: argparse.Namespace) -> int:
     """Write the manifest and dataset card of a dataset version; an identical version is kept as is."""
-    from nbvdata.manifest import NOT_RECORDED, publish
+    from nbvdata.manifest import NOT_RECORDED
+    from nbvdata.publish import publish
 
     started = time.perf_counter()
     result = publish(args.shards_dir, args.name, args.version, args.manifests, args.notes, args.meshes,
@@ -439,7 +442,19 @@ def build_parser() -> Parser:
     parser.add_argument("--version", action="version", version=f"nbvdata {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
+    _add_generate(sub)
+    _add_inspect(sub)
+    _add_publish(sub)
+    _add_verify(sub)
+    _add_export(sub)
+    _add_show(sub)
+    _add_demo(sub)
+    _add_import_legacy(sub)
+    return parser
 
+
+def _add_generate(sub) -> None:
+    """``generate``: its options."""
     gen = sub.add_parser("generate", help="simulate labelled reconstructions of meshes into HDF5 shards")
     gen.add_argument("--meshes", type=Path, help="folder of mesh files (searched recursively), one mesh "
                      "file, or a .txt list of files; with --manifest, the folder its meshes lie in or below; default: "
@@ -473,6 +488,8 @@ def build_parser() -> Parser:
                      help="show a progress bar (default: on a terminal)")
     gen.set_defaults(func=cmd_generate)
 
+def _add_inspect(sub) -> None:
+    """``inspect``: its options."""
     inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=non_negative_int, default=10, help="most frequent NBVs to list")
@@ -481,6 +498,8 @@ def build_parser() -> Parser:
                          "per reconstruction step, beside the authors' published grids (reads every grid)")
     inspect.set_defaults(func=cmd_inspect)
 
+def _add_publish(sub) -> None:
+    """``publish``: its options."""
     pub = sub.add_parser("publish", help="write a manifest and dataset card for a folder of shards: a dataset "
                          "version others can cite, check and train on")
     pub.add_argument("shards_dir", type=Path, help="folder of shards (searched recursively), e.g. nbv_dataset")
@@ -499,6 +518,8 @@ def build_parser() -> Parser:
                      help="share of meshes held out for test in the mesh split (default 0.2)")
     pub.set_defaults(func=cmd_publish)
 
+def _add_verify(sub) -> None:
+    """``verify``: its options."""
     ver = sub.add_parser("verify", help="check shards against a manifest (missing, changed or extra files), or "
                          "read a folder of shards whole (damaged ones)")
     ver.add_argument("manifest", type=Path, help="a manifest, e.g. manifests/builtin-shapes-1.3.0.json; or a "
@@ -510,6 +531,8 @@ def build_parser() -> Parser:
                      "published one (a regeneration written by another HDF5 library, say)")
     ver.set_defaults(func=cmd_verify)
 
+def _add_export(sub) -> None:
+    """``export``: its options."""
     export = sub.add_parser("export", help="write shards in another project's file layout (PC-NBV's, SCVP's)")
     export.add_argument("shards", type=Path, nargs="+", help="shard files or folders, or one published version's "
                         "manifest (manifests/NAME-X.Y.Z.json: verified first)")
@@ -522,6 +545,8 @@ def build_parser() -> Parser:
                         "one it records)")
     export.set_defaults(func=cmd_export)
 
+def _add_show(sub) -> None:
+    """``show``: its options."""
     show = sub.add_parser("show", help="render a shard sample or a grid with the candidate views to PNG")
     show.add_argument("grid", type=Path, nargs="?",
                       help="a shard (.h5; pick the sample with --index) or a .npy of one (n, n, n) grid or of "
@@ -538,6 +563,8 @@ def build_parser() -> Parser:
     show.add_argument("--out", type=Path, default=Path("nbv_show.png"), help="PNG to write")
     show.set_defaults(func=cmd_show)
 
+def _add_demo(sub) -> None:
+    """``demo``: its options."""
     demo = sub.add_parser("demo", help="scan an object from a few random views and render the grid to PNG")
     _add_object_options(demo)
     _add_config_options(demo)
@@ -548,6 +575,8 @@ def build_parser() -> Parser:
                       "(open it with: rerun FILE.rrd; needs the viz extra; docs/rerun.md)")
     demo.set_defaults(func=cmd_demo)
 
+def _add_import_legacy(sub) -> None:
+    """``import-legacy``: its options."""
     legacy = sub.add_parser("import-legacy", help="convert the authors' published dataset into shards")
     legacy.add_argument("--volumes", type=Path, required=True,
                         help="dataset_volumes_regression.zip or .npy (N grids of 32^3 probabilities)")
@@ -558,7 +587,6 @@ def build_parser() -> Parser:
     legacy.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="show a progress bar (default: on a terminal)")
     legacy.set_defaults(func=cmd_import_legacy)
-    return parser
 
 
 @exit_quietly_when_stdout_closes
@@ -567,14 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return args.func(args)
-    except (ConfigError, LegacyError, MeshError, ShardError, UsageError) as error:
-        print(f"nbvdata {args.command}: error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"nbvdata {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return run_command("nbvdata", args)
 
 
 if __name__ == "__main__":

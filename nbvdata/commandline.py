@@ -18,6 +18,8 @@ import sys
 from dataclasses import dataclass
 from typing import Callable
 
+from nbvdata.errors import UserError
+
 CLOSED_PIPE_STATUS = 128 + signal.SIGPIPE
 """141: what a shell reports for a tool that SIGPIPE stopped, as ``yes | head -1`` does for ``yes``."""
 
@@ -125,3 +127,16 @@ def _stdout_reader_gone() -> bool:
         return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
     except (AttributeError, OSError, ValueError):
         return True
+
+
+def run_command(program: str, args: argparse.Namespace) -> int:
+    """Run the parsed subcommand ``args.func(args)`` as both command lines do: a ``UserError`` is
+    its message in one line and exit status 2, Ctrl-C exit status 130."""
+    try:
+        return args.func(args)
+    except UserError as error:
+        print(f"{program} {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{program} {args.command}: interrupted", file=sys.stderr)
+        return 130

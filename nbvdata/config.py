@@ -18,12 +18,15 @@ from typing import Any, Literal
 
 import yaml
 
+from nbvdata.errors import UserError
 
-class ConfigError(ValueError):
+
+class ConfigError(UserError):
     """A config file or override that cannot be used; the message names the fix."""
 
 
-def _check(condition: bool, message: str) -> None:
+def require(condition: bool, message: str) -> None:
+    """ConfigError(``message``) unless ``condition``: how a setting states its rule."""
     if not condition:
         raise ConfigError(message)
 
@@ -39,7 +42,7 @@ class MeshConfig:
     """Axis that points up in the mesh files; "y" rotates y-up files so that +z is up."""
 
     def __post_init__(self) -> None:
-        _check(self.object_size > 0, f"mesh.object_size={self.object_size}: must be > 0 metres")
+        require(self.object_size > 0, f"mesh.object_size={self.object_size}: must be > 0 metres")
 
 
 # View layouts read from a fixed list of directions (``nbvdata.views.FIXED_LAYOUTS``) and their
@@ -61,10 +64,10 @@ class ViewConfig:
     (``count`` must be 32)."""
 
     def __post_init__(self) -> None:
-        _check(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
-        _check(self.count >= 1, f"views.count={self.count}: must be >= 1")
+        require(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
+        require(self.count >= 1, f"views.count={self.count}: must be >= 1")
         fixed = FIXED_LAYOUT_COUNTS.get(self.layout)
-        _check(fixed is None or self.count == fixed,
+        require(fixed is None or self.count == fixed,
                f"views.count={self.count}: views.layout={self.layout} has {fixed} views: set views.count={fixed}")
 
 
@@ -86,12 +89,12 @@ class SensorConfig:
     """Standard deviation of Gaussian range noise along each ray, in metres (0 = exact)."""
 
     def __post_init__(self) -> None:
-        _check(self.width >= 1 and self.height >= 1,
+        require(self.width >= 1 and self.height >= 1,
                f"sensor.width/height={self.width}x{self.height}: must be >= 1")
-        _check(0 < self.hfov < 3.1 and 0 < self.vfov < 3.1,
+        require(0 < self.hfov < 3.1 and 0 < self.vfov < 3.1,
                f"sensor.hfov/vfov={self.hfov}/{self.vfov}: must lie in (0, 3.1) radians")
-        _check(0 <= self.near < self.far, f"sensor.near={self.near}, far={self.far}: need 0 <= near < far")
-        _check(self.noise_std >= 0, f"sensor.noise_std={self.noise_std}: must be >= 0")
+        require(0 <= self.near < self.far, f"sensor.near={self.near}, far={self.far}: need 0 <= near < far")
+        require(self.noise_std >= 0, f"sensor.noise_std={self.noise_std}: must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -115,13 +118,13 @@ class GridConfig:
     """Upper clamping probability (OctoMap default 0.971)."""
 
     def __post_init__(self) -> None:
-        _check(self.size >= 2 and self.size % 2 == 0,
+        require(self.size >= 2 and self.size % 2 == 0,
                f"grid.size={self.size}: must be even and >= 2 (so voxels align with OctoMap keys)")
-        _check(self.extent is None or self.extent > 0,
+        require(self.extent is None or self.extent > 0,
                f"grid.extent={self.extent}: must be > 0 metres, or null to fit the cube to the object")
-        _check(0.5 < self.prob_hit < 1, f"grid.prob_hit={self.prob_hit}: must lie in (0.5, 1)")
-        _check(0 < self.prob_miss < 0.5, f"grid.prob_miss={self.prob_miss}: must lie in (0, 0.5)")
-        _check(0 < self.clamp_min < 0.5 < self.clamp_max < 1,
+        require(0.5 < self.prob_hit < 1, f"grid.prob_hit={self.prob_hit}: must lie in (0.5, 1)")
+        require(0 < self.prob_miss < 0.5, f"grid.prob_miss={self.prob_miss}: must lie in (0, 0.5)")
+        require(0 < self.clamp_min < 0.5 < self.clamp_max < 1,
                f"grid.clamp_min/max={self.clamp_min}/{self.clamp_max}: need 0 < min < 0.5 < max < 1")
 
     @property
@@ -148,8 +151,8 @@ class CoverageConfig:
     """"euclidean": distance <= threshold; "box": |dx|, |dy|, |dz| < threshold (the authors' code)."""
 
     def __post_init__(self) -> None:
-        _check(self.points >= 1, f"coverage.points={self.points}: must be >= 1")
-        _check(self.threshold > 0, f"coverage.threshold={self.threshold}: must be > 0 metres")
+        require(self.points >= 1, f"coverage.points={self.points}: must be >= 1")
+        require(self.threshold > 0, f"coverage.threshold={self.threshold}: must be > 0 metres")
 
 
 @dataclass(frozen=True)
@@ -168,8 +171,8 @@ class OracleConfig:
     (``cover_bound`` < ``cover_size``)."""
 
     def __post_init__(self) -> None:
-        _check(0 <= self.min_overlap <= 1, f"oracle.min_overlap={self.min_overlap}: must be in [0, 1]")
-        _check(self.cover_node_limit >= 1,
+        require(0 <= self.min_overlap <= 1, f"oracle.min_overlap={self.min_overlap}: must be in [0, 1]")
+        require(self.cover_node_limit >= 1,
                f"oracle.cover_node_limit={self.cover_node_limit}: must be >= 1 branch-and-bound node")
 
 
@@ -192,12 +195,12 @@ class EpisodeConfig:
     oracle's NBV instead of the policy (DAgger's beta). 0 = the policy's moves only."""
 
     def __post_init__(self) -> None:
-        _check(self.runs_per_mesh >= 1, f"episode.runs_per_mesh={self.runs_per_mesh}: must be >= 1")
-        _check(self.max_scans >= 1, f"episode.max_scans={self.max_scans}: must be >= 1")
-        _check(0 <= self.min_gain <= 1, f"episode.min_gain={self.min_gain}: must be in [0, 1]")
-        _check(self.seed >= 0, f"episode.seed={self.seed}: must be >= 0")
-        _check(0 <= self.explore <= 1, f"episode.explore={self.explore}: must be in [0, 1] (0 = no exploration)")
-        _check(0 <= self.oracle_mix <= 1, f"episode.oracle_mix={self.oracle_mix}: must be in [0, 1]")
+        require(self.runs_per_mesh >= 1, f"episode.runs_per_mesh={self.runs_per_mesh}: must be >= 1")
+        require(self.max_scans >= 1, f"episode.max_scans={self.max_scans}: must be >= 1")
+        require(0 <= self.min_gain <= 1, f"episode.min_gain={self.min_gain}: must be in [0, 1]")
+        require(self.seed >= 0, f"episode.seed={self.seed}: must be >= 0")
+        require(0 <= self.explore <= 1, f"episode.explore={self.explore}: must be in [0, 1] (0 = no exploration)")
+        require(0 <= self.oracle_mix <= 1, f"episode.oracle_mix={self.oracle_mix}: must be in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -210,7 +213,7 @@ class StateConfig:
     ``points``, ``points_count`` and ``reference_points``. 0 = no clouds (the shards of before)."""
 
     def __post_init__(self) -> None:
-        _check(self.points >= 0, f"state.points={self.points}: must be an integer >= 0 (0 = no point clouds; "
+        require(self.points >= 0, f"state.points={self.points}: must be an integer >= 0 (0 = no point clouds; "
                "PC-NBV reads 1024)")
 
 
@@ -228,8 +231,8 @@ class GenerateConfig:
     """Runs per work unit and shard; 0 = all runs of a mesh in one shard."""
 
     def __post_init__(self) -> None:
-        _check(self.workers >= 0, f"generate.workers={self.workers}: must be >= 0 (0 = all cores)")
-        _check(self.runs_per_shard >= 0, f"generate.runs_per_shard={self.runs_per_shard}: must be >= 0")
+        require(self.workers >= 0, f"generate.workers={self.workers}: must be >= 0 (0 = all cores)")
+        require(self.runs_per_shard >= 0, f"generate.runs_per_shard={self.runs_per_shard}: must be >= 0")
 
 
 @dataclass(frozen=True)

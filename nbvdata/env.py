@@ -59,7 +59,7 @@ import numpy as np
 
 from nbvdata.config import ConfigError, SimConfig, apply_overrides, from_dict, load_config, to_dict
 from nbvdata.episode import Reconstruction
-from nbvdata.generate import MeshSource, SceneCache, builtin_sources, mesh_sources
+from nbvdata.sources import MeshSource, SceneCache, builtin_sources, mesh_sources
 from nbvdata.mesh import MeshError, check_content
 from nbvdata.oracle import overlap, popcount
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object

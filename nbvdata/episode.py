@@ -125,7 +125,7 @@ class Reconstruction:
 
 
 @dataclass
-class RunRecord:
+class LabelledRun:
     """The labelled states of one run, one list entry per state (see ``nbvdata.shards``)."""
 
     log_odds: list[np.ndarray] = field(default_factory=list)
@@ -222,14 +222,14 @@ def run_seed(seed: int, mesh_id: str, run: int) -> int:
 
 
 def run_reconstruction(scene: Scene, start_view: int, rng: np.random.Generator,
-                       cache: ViewCache | None, mover: Mover | None = None) -> RunRecord:
+                       cache: ViewCache | None, mover: Mover | None = None) -> LabelledRun:
     """One labelled run from ``start_view``; ``rng`` draws the range noise, if any; ``mover``
     chooses the moves (default: always the NBV). With ``oracle.cover`` every state also gets its
     set-cover label, each from the previous one (the first from the mesh's, ``Scene.empty_cover``)."""
     config = scene.config
     oracle = scene.oracle
     mover = mover if mover is not None else Mover()
-    record = RunRecord()
+    record = LabelledRun()
     clouds = config.state.points
     state = Reconstruction(scene, cache, rng, points=clouds > 0)
     state.scan(start_view)

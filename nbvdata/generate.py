@@ -28,7 +28,7 @@ import queue
 import sys
 import threading
 import time
-from collections import OrderedDict, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -37,81 +37,20 @@ import numpy as np
 import yaml
 
 from nbvdata import __version__
-from nbvdata.claims import (claim, drop_partials, folder_lock, partial_path, sweep_partials, sweep_temporaries,
-                            write_atomic)
-from nbvdata.config import ConfigError, GenerateConfig, MeshConfig, SimConfig
-from nbvdata.episode import Mover, RunRecord, ViewCache, run_reconstruction, run_seed, scene_rng, start_view
-from nbvdata.manifest import find_part_meshes, load_manifest
-from nbvdata.mesh import MeshError, ObjectMesh, find_meshes, load_mesh, sha256_file
+from nbvdata.claims import claim, drop_partials, folder_lock, partial_path, sweep_partials
+from nbvdata.files import sweep_temporaries, write_atomic
+from nbvdata.config import ConfigError, SimConfig
+from nbvdata.episode import Mover, LabelledRun, ViewCache, run_reconstruction, run_seed, start_view
+from nbvdata.mesh import MeshError, ObjectMesh
 from nbvdata.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import COVER, GENERATED, MOVES, GridPalette, Shard, ShardError, write_shard
+from nbvdata.sources import MeshSource, SceneCache, builtin_sources, mesh_sources, part_sources  # noqa: F401 (the job's sources, named here too)
 
 CONFIG_FILE = "config.yaml"
 POLICY_FILE = "policy.yaml"
 FAILURES_FILE = "failures.tsv"
-RERUN_FOLDER = "rerun"  # --rerun-runs: one recording per shard, named as it (nbvdata.record)
-
-
-@dataclass(frozen=True)
-class MeshSource:
-    """A mesh to generate from: a file, or a built-in shape (``path`` None)."""
-
-    name: str
-    mesh_id: str
-    path: Path | None = None
-
-    def load(self, config: MeshConfig) -> ObjectMesh:
-        if self.path is None:
-            return builtin_object(self.name.removeprefix("builtin:"), config)
-        return load_mesh(self.path, config)
-
-    @property
-    def stem(self) -> str:
-        return self.name.removeprefix("builtin:") if self.path is None else self.path.stem
-
-
-def builtin_sources(config: MeshConfig = MeshConfig()) -> list[MeshSource]:
-    """The built-in procedural shapes: the job's default when no meshes are given."""
-    return [MeshSource(f"builtin:{name}", builtin_object(name, config).mesh_id) for name in BUILTIN_SHAPES]
-
-
-def mesh_sources(where: Path) -> tuple[list[MeshSource], list[tuple[str, str]]]:
-    """Sources from a folder (searched recursively), one mesh file, or a .txt list of files
-    (one path per line, relative to the list; # starts a comment).
-
-    Returns (sources, failures): files that cannot even be read are failures (name, reason).
-    """
-    where = Path(where)
-    if where.is_file() and where.suffix.lower() == ".txt":
-        lines = [line.split("#", 1)[0].strip() for line in where.read_text().splitlines()]
-        files = [where.parent / line for line in lines if line]
-        if not files:
-            raise MeshError(f"{where}: the list names no mesh files")
-    elif where.is_file():
-        files = [where]
-    else:
-        files = find_meshes(where)
-    sources, failures = [], []
-    for path in files:
-        try:
-            sources.append(MeshSource(path.name, sha256_file(path), path))
-        except OSError as error:
-            failures.append((str(path), f"cannot read the file: {error.strerror or error}"))
-    return sources, failures
-
-
-def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) -> tuple[list[MeshSource], dict]:
-    """The meshes of ``part`` (train, val or test) of a published version's mesh split, each file
-    found in or below ``mesh_root`` by its name and sha256 (``nbvdata.manifest.find_part_meshes``:
-    ManifestError naming a missing or changed one), and what to record of the choice:
-    {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
-    published = load_manifest(manifest)
-    meshes = find_part_meshes(published, part, mesh_root)
-    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
-    record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
-    return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
+RERUN_FOLDER = "rerun"  # --rerun-runs: one recording per shard, named as it (nbvdata.rerun)
 
 
 @dataclass(frozen=True)
@@ -191,7 +130,7 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
                  threads: int, policy: PolicySource | None = None, rerun_runs: int = 0) -> UnitResult:
     """``run_unit`` once the unit is claimed."""
     result = UnitResult(unit)
-    recorded_runs: list[tuple[int, RunRecord]] = []  # (run, record) of the runs to record
+    recorded_runs: list[tuple[int, LabelledRun]] = []  # (run, record) of the runs to record
     timer = Timer()
     if threads:
         import numba
@@ -264,11 +203,11 @@ def recording_name(unit: Unit) -> str:
     return Path(unit.shard_name).with_suffix(".rrd").name
 
 
-def record_unit(path: Path, scene: Scene, runs: list[tuple[int, RunRecord]]) -> None:
+def record_unit(path: Path, scene: Scene, runs: list[tuple[int, LabelledRun]]) -> None:
     """Write the Rerun recording of a unit's first runs ((run, record) pairs), each under the
-    entity path run_NNNN (``nbvdata.record``). A recording that cannot be written is logged as
+    entity path run_NNNN (``nbvdata.rerun``). A recording that cannot be written is logged as
     a warning: the shard, written before, stands."""
-    from nbvdata.record import Recording, log_record
+    from nbvdata.rerun import Recording, log_record
 
     try:
         with Recording(path, path.stem) as recording:
@@ -279,42 +218,18 @@ def record_unit(path: Path, scene: Scene, runs: list[tuple[int, RunRecord]]) -> 
                                             type(error).__name__, error)
 
 
-class SceneCache:
-    """The scenes of the last ``size`` meshes asked for (None: of every mesh), each with its mesh
-    and, for a noise-free sensor, its view cache: (mesh, scene, view cache) by (mesh source, data
-    settings, threads). Everything in a scene is a function of the mesh, the data settings (all but
-    ``generate``) and the seed, so taking it from here changes no byte. Not thread-safe: a view
-    cache has scratch buffers."""
-
-    def __init__(self, size: int | None):
-        self.size = size
-        self._entries: OrderedDict = OrderedDict()
-
-    def get(self, source: MeshSource, config: SimConfig, threads: int = 0) -> tuple[ObjectMesh, Scene, ViewCache | None]:
-        """The entry of ``source`` under ``config``: built here (``threads`` > 0 limits the ray
-        casting threads), or the one kept."""
-        key = (source, dataclasses.replace(config, generate=GenerateConfig()), threads)
-        if key in self._entries:
-            self._entries.move_to_end(key)
-            return self._entries[key]
-        obj = source.load(config.mesh)
-        scene = Scene.build(obj, config, scene_rng(config.episode.seed, source.mesh_id), threads)
-        entry = obj, scene, ViewCache(scene, config.state.points > 0) if config.sensor.noise_std == 0 else None
-        if self.size is None or self.size > 0:
-            self._entries[key] = entry
-            while self.size is not None and len(self._entries) > self.size:
-                self._entries.popitem(last=False)
-        return entry
-
-    def __len__(self) -> int:
-        return len(self._entries)
-
-
 # Scenes of the meshes this thread ran last: the units of one mesh (runs_per_shard > 0) come one
 # after another, so a worker casts each mesh's scene once, not once per unit. Per thread, since a
 # scene's view cache has scratch buffers (the threading backend runs units side by side).
 SCENE_CACHE_SIZE = 2
 _SCENES = threading.local()
+
+
+def clear_scene_caches(size: int = SCENE_CACHE_SIZE) -> None:
+    """Forget the scenes every thread of this process kept, and keep ``size`` meshes' from now on
+    (0: none, each unit casts its mesh's scene again; ``benchmarks/scene_reuse.py``)."""
+    global SCENE_CACHE_SIZE, _SCENES
+    SCENE_CACHE_SIZE, _SCENES = size, threading.local()
 
 
 def _mesh_scene(source: MeshSource, config: SimConfig, threads: int) -> tuple[ObjectMesh, Scene, ViewCache | None]:

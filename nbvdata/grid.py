@@ -25,21 +25,12 @@ import numba
 import numpy as np
 
 from nbvdata.config import GridConfig, SimConfig
+from nbvdata.logodds import logodds, probability
 from nbvdata.sensor import Scan, half_line_meets_box
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
     # Try OpenMP before TBB: pip's TBB is often too old for numba, which then warns on every run.
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
-
-
-def _logodds(probability: float) -> np.float32:
-    """OctoMap's ``logodds``: computed in double, stored as float."""
-    return np.float32(math.log(probability / (1.0 - probability)))
-
-
-def probability(log_odds: np.ndarray) -> np.ndarray:
-    """float32 occupancy probability of float32 log-odds (computed in float64); 0 -> exactly 0.5."""
-    return (1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -73,9 +64,9 @@ class OccupancyGrid:
         self.origin = self.first_key * self.resolution
         self.log_odds = np.zeros((n, n, n), dtype=np.float32)
         self.observed = np.zeros((n, n, n), dtype=bool)
-        self._hit = _logodds(config.prob_hit)
-        self._miss = _logodds(config.prob_miss)
-        self._clamp = (_logodds(config.clamp_min), _logodds(config.clamp_max))
+        self._hit = logodds(config.prob_hit)
+        self._miss = logodds(config.prob_miss)
+        self._clamp = (logodds(config.clamp_min), logodds(config.clamp_max))
         self._free_mark = np.zeros((n, n, n), dtype=np.uint8)
         self._occupied_mark = np.zeros((n, n, n), dtype=np.uint8)
 
@@ -420,3 +411,56 @@ def _apply_update(log_odds, observed, voxels, update, clamp_min, clamp_max):
             value = clamp_max
         log_odds[v] = value
         observed[v] = True
+
+
+# ---------------------------------------------------------------------------------------------
+# Walking rays through a grid: the information-gain baseline
+
+
+@numba.njit(cache=True, inline="always")
+def _entropy(p):
+    q = np.float64(p)
+    return -(q * math.log(q) + (1.0 - q) * math.log(1.0 - q))
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def ray_information(origins, ends, probabilities, resolution, first_key, box_low, box_high, unknown_low,
+                     unknown_high, scratch, information, first):
+    """The information-gain walk (Kriegel et al. 2012, as the paper's baseline): every ray of every
+    view (origins (V, 3), ends (V, N, 3) float32) walked with OctoMap's DDA (the voxels
+    ``integrate`` would mark) until the first occupied voxel (p > 0.5) or its end.
+
+    probabilities (n, n, n) float32; resolution, first_key: the grid's (voxel [i, j, k] has key
+    first_key + i, ...); box_low <= i, j, k < box_high: the object's box in voxels; a voxel is
+    unknown when unknown_low <= p <= unknown_high; scratch (n, n, n) bool, written (the walk's
+    marks). Writes information[v, r] (V, N) float64: the entropy -p ln p - (1 - p) ln(1 - p) of the
+    unknown box voxels the ray passes, and first[v, r] (V, N) int8: 1 when the first non-free box
+    voxel it meets is occupied, 2 when it is unknown, 0 when it meets neither."""
+    n = probabilities.shape[0]
+    views, rays = ends.shape[0], ends.shape[1]
+    for index in numba.prange(views * rays):
+        v, r = index // rays, index % rays
+        ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
+        (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length,
+         was_inside) = _walk_start(ox, oy, oz, ends[v, r, 0], ends[v, r, 1], ends[v, r, 2], resolution,
+                                   first_key, scratch)
+        total, met = 0.0, 0
+        while active:
+            active, k0, k1, k2, t0, t1, t2, was_inside = _walk_step(
+                k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length, was_inside,
+                first_key, scratch)
+            i, j, k = k0 - first_key, k1 - first_key, k2 - first_key
+            if not (active and 0 <= i < n and 0 <= j < n and 0 <= k < n):
+                continue
+            p = probabilities[i, j, k]
+            in_box = box_low <= i < box_high and box_low <= j < box_high and box_low <= k < box_high
+            if p > 0.5:
+                if in_box and met == 0:
+                    met = 1
+                break
+            if in_box and unknown_low <= p <= unknown_high:
+                total += _entropy(p)
+                if met == 0:
+                    met = 2
+        information[v, r] = total
+        first[v, r] = met

@@ -35,21 +35,17 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import os
 import re
 import subprocess
 import time
 from collections import defaultdict
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
-from nbvdata import __version__
-from nbvdata.claims import write_atomic
-from nbvdata.mesh import sha256_file
-from nbvdata.shards import GENERATED, SCHEMA_VERSION, Shard, ShardError
+from nbvdata.files import sha256_file
+from nbvdata.shards import GENERATED, Shard, ShardError
 from nbvdata.summary import dataset_name
 from nbvdata.text import plural
 
@@ -300,68 +296,6 @@ class Published:
         return [records[mesh_id] for mesh_id in ids]
 
 
-@dataclass(frozen=True)
-class PublishedMesh:
-    """A mesh of a published version, found: ``source`` as the manifest records it (a file name
-    or ``builtin:NAME``), ``mesh_id``, and ``path`` (None for a built-in shape)."""
-
-    source: str
-    mesh_id: str
-    path: Path | None
-
-
-def find_part_meshes(published: Published, part: str, mesh_root: str | Path | None) -> list[PublishedMesh]:
-    """The meshes of ``part`` of the version's mesh split: every file is looked up in or below
-    ``mesh_root`` by the file name the manifest records and taken only when its sha256 is the
-    recorded one (a mesh id is the sha256 of its file); a built-in shape must give its recorded
-    id. ManifestError, in one line naming the meshes, when one is missing or differs."""
-    records = published.part_meshes(part)
-    files = [record for record in records if not str(record["source"]).startswith("builtin:")]
-    where = f"the {part} part of {published.label}"
-    found: dict[str, list[Path]] = defaultdict(list)
-    if files:
-        if mesh_root is None:
-            raise ManifestError(f"{where} names mesh files: pass --meshes ROOT, the folder they lie in or below "
-                                "(e.g. ../shared/meshes)")
-        root = Path(mesh_root)
-        if not root.is_dir():
-            raise ManifestError(f"--meshes {root}: no such folder; pass the folder the meshes of {where} lie in or "
-                                "below (e.g. ../shared/meshes)")
-        names = {record["source"] for record in files}
-        for path in sorted(root.rglob("*")):
-            if path.name in names and path.is_file():
-                found[path.name].append(path)
-    from nbvdata.shapes import BUILTIN_SHAPES, builtin_object  # trimesh's shapes: only when needed
-
-    meshes, missing, changed = [], [], []
-    for record in records:
-        source, mesh_id = str(record["source"]), str(record["id"])
-        if source.startswith("builtin:"):
-            name = source.removeprefix("builtin:")
-            if name not in BUILTIN_SHAPES or builtin_object(name).mesh_id != mesh_id:
-                changed.append(f"{source} (this nbvdata's shape is another)")
-            meshes.append(PublishedMesh(source, mesh_id, None))
-            continue
-        candidates = found.get(source, [])
-        match = next((path for path in candidates if sha256_file(path) == record["sha256"]), None)
-        if match is None:
-            (changed if candidates else missing).append(str(candidates[0]) if candidates else source)
-        meshes.append(PublishedMesh(source, mesh_id, match))
-    if missing:
-        raise ManifestError(f"{_some(missing)} of {where}: not found in or below {mesh_root}: pass --meshes the "
-                            "folder that holds the published meshes")
-    if changed:
-        raise ManifestError(f"{_some(changed)}: sha256 differs from the mesh {where} records (another object): "
-                            "restore the published file, or pass --meshes the folder that holds it")
-    return meshes
-
-
-def _some(names: list[str], shown: int = 3) -> str:
-    """The first ``shown`` names and how many more: one line however many."""
-    more = f" and {len(names) - shown} more" if len(names) > shown else ""
-    return ", ".join(names[:shown]) + more
-
-
 def load_manifest(path: str | Path, root: str | Path | None = None) -> Published:
     """Read a manifest; its shards are under ``root``, by default the root it records (relative
     to the manifest's folder)."""
@@ -535,66 +469,6 @@ def open_verified_for(path: str | Path, root: str | Path | None = None,
 # Publishing
 
 
-@dataclass(frozen=True)
-class PublishResult:
-    """``identical``: the version was already published with this content, nothing was written."""
-
-    path: Path
-    content: dict
-    identical: bool
-
-
-def publish(shards_dir: str | Path, name: str, version: str, manifests_dir: str | Path = "manifests",
-            notes: str = "", mesh_dir: str | Path | None = None, seed: int = 0, val_fraction: float = 0.2,
-            test_fraction: float = 0.2) -> PublishResult:
-    """Write ``manifests_dir/NAME-VERSION.json`` for the shards in ``shards_dir``, with its card.
-
-    Refuses (ManifestError) an existing NAME-VERSION with other content, naming the next version.
-    """
-    if not NAME.fullmatch(name):
-        raise ManifestError(f"--name {name!r}: use letters, digits, '.', '_' and '-', starting with a letter "
-                            "or digit, e.g. builtin-shapes")
-    if not VERSION.fullmatch(version):
-        raise ManifestError(f"--version {version!r}: use X.Y.Z, e.g. 1.0.0")
-    if not 0 < val_fraction < 1 or not 0 <= test_fraction < 1 or val_fraction + test_fraction >= 1:
-        raise ManifestError(f"--val-fraction {val_fraction} and --test-fraction {test_fraction}: need "
-                            "0 < val, 0 <= test and val + test < 1")
-    shards_dir, manifests_dir = Path(shards_dir), Path(manifests_dir)
-    if not shards_dir.is_dir():
-        raise ManifestError(f"{shards_dir}: no such folder; pass the folder nbvdata generate wrote")
-    contents = read_contents(shards_dir, mesh_licenses(mesh_dir) if mesh_dir is not None else {})
-    commit, dirty = git_state()
-    content = _normalised({
-        "manifest_format": MANIFEST_FORMAT, "name": name, "version": version, "notes": notes,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "package_version": __version__, "git_commit": commit, "git_dirty": dirty,
-        "schema_version": SCHEMA_VERSION, "source": contents.source,
-        "root": Path(os.path.relpath(shards_dir.resolve(), manifests_dir.resolve())).as_posix(),
-        "config": contents.config,
-        "totals": {"shards": len(contents.shards), "samples": len(contents.groups),
-                   "runs": sum(mesh["runs"] for mesh in contents.meshes),
-                   "meshes": len(contents.meshes), "bytes": sum(shard["bytes"] for shard in contents.shards)},
-        "meshes": contents.meshes,
-        "shards": contents.shards,
-        "splits": make_splits(contents, seed, val_fraction, test_fraction),
-    })
-    path = manifests_dir / f"{name}-{version}.json"
-    if path.exists():
-        existing = load_manifest(path).content
-        level, what = compare(existing, content)
-        if level is None:
-            return PublishResult(path, existing, identical=True)
-        raise ManifestError(f"{name} {version} is already published ({path}) with other {what}; published "
-                            f"versions are immutable: publish this as {next_version(manifests_dir, name, level)} "
-                            f"({RULES[level]})")
-    from nbvdata.card import write_card  # card imports matplotlib: only when publishing
-
-    manifests_dir.mkdir(parents=True, exist_ok=True)
-    write_card(content, path, contents.paths)
-    write_atomic(path, dumps(content))  # last: a manifest exists only with its card
-    return PublishResult(path, content, identical=False)
-
-
 def compare(old: dict, new: dict) -> tuple[str | None, str]:
     """(bump level, what differs in words), or (None, "") when the content is the same."""
     differ = [key for key in sorted((set(old) | set(new)) - VOLATILE) if old.get(key) != new.get(key)]
@@ -660,6 +534,6 @@ def dumps(content: dict) -> str:
     return re.sub(r"\[[^\[\]{}\"]*\]", lambda m: "[" + " ".join(m.group(0)[1:-1].split()) + "]", text) + "\n"
 
 
-def _normalised(content: dict) -> dict:
+def normalised(content: dict) -> dict:
     """The content as it reads back from JSON (lists, not tuples), so it compares with a read one."""
     return json.loads(json.dumps(content, allow_nan=False))

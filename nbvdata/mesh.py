@@ -8,7 +8,6 @@ bytes, stable across machines and renames.
 
 from __future__ import annotations
 
-import hashlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,12 +16,14 @@ import numpy as np
 import trimesh
 
 from nbvdata.config import MeshConfig
+from nbvdata.errors import UserError
+from nbvdata.files import sha256_file
 
 SUPPORTED_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
 
 
-class MeshError(ValueError):
+class MeshError(UserError):
     """A mesh file that cannot be used; the message names the file and the reason."""
 
 
@@ -40,15 +41,6 @@ class ObjectMesh:
     mesh_id: str
     source: str
     scale: float
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes, read in chunks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def find_meshes(folder: str | Path) -> list[Path]:

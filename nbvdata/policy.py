@@ -29,7 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from nbvdata.config import ConfigError, SimConfig
-from nbvdata.mesh import sha256_file
+from nbvdata.files import sha256_file
 from nbvdata.views import Pose
 
 USE_FIT = "pass a checkpoint written by nbvtrain fit (runs/NAME/best.pt)"

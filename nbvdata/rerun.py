@@ -39,14 +39,14 @@ try:
     import rerun as rr
     import rerun.blueprint as rrb
 except ImportError:
-    raise ImportError("nbvdata.record needs rerun-sdk, which is not installed: "
+    raise ImportError("nbvdata.rerun needs rerun-sdk, which is not installed: "
                       'pip install -e ".[viz]" (in a checkout) or pip install "rerun-sdk>=0.41"') from None
 
 import numpy as np
 
-from nbvdata.claims import TEMPORARY_SUFFIX, process_tag
-from nbvdata.episode import NO_MOVE, RunRecord
-from nbvdata.grid import probability
+from nbvdata.files import TEMPORARY_SUFFIX, process_tag
+from nbvdata.episode import NO_MOVE, LabelledRun
+from nbvdata.logodds import probability
 from nbvdata.scene import Scene
 from nbvdata.views import Pose
 
@@ -220,7 +220,7 @@ class RunLog:
                                           radii=0.002, labels=[name], show_labels=False))
 
 
-def log_record(run: RunLog, record: RunRecord) -> None:
+def log_record(run: RunLog, record: LabelledRun) -> None:
     """Log every state of a generated run (``nbvdata.episode.run_reconstruction``'s record):
     its grid, oracle scores, NBV and next move."""
     views = run.scene.views

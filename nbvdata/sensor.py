@@ -206,7 +206,7 @@ class MeshScanner:
         cast = np.flatnonzero(near_box)
         t_cast = np.empty(len(cast), dtype=np.float64)
         triangles = self._triangles(rays[cast])
-        _plane_distances(rays, cast, triangles, self._vertices, self._faces, t_cast)
+        plane_distances(rays, cast, triangles, self._vertices, self._faces, t_cast)
         return rays, cast, triangles, t_cast
 
     @property
@@ -263,7 +263,7 @@ class MeshScanner:
             _beyond(rays, which, t_from, again)
             reported = self._triangles(again)
             t_again = np.empty(len(pending), dtype=np.float64)
-            _plane_distances(rays, which, reported, self._vertices, self._faces, t_again)
+            plane_distances(rays, which, reported, self._vertices, self._faces, t_again)
             early = t_again < t_from  # a surface at the restart itself, within Embree's doubt: look past it
             met = ~early
             t_now, canon_now, graze_now = (np.empty(int(met.sum()), dtype=dtype) for dtype in (np.float64, np.int64,
@@ -399,7 +399,7 @@ def _plane_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
 
 
 @numba.njit(cache=True)
-def _plane_distances(rays, cast, triangle, vertices, faces, t_cast):
+def plane_distances(rays, cast, triangle, vertices, faces, t_cast):
     """t_cast[c] = distance along ray cast[c] to the plane of the triangle it hit, inf for a miss.
 
     rays (M, 6) float32, cast (C,) int64 indices into rays, triangle (C,) uint32 (NO_HIT = no
@@ -485,7 +485,7 @@ def _fill_cells(first, last, shape):
 @numba.njit(cache=True)
 def _triangle_hit(ox, oy, oz, dx, dy, dz, vertices, faces, f):
     """(t, margin, gap) of a ray (float64 origin and direction) and triangle ``f``: t its
-    distance to the triangle's plane (as ``_plane_distances``); margin how far that plane point
+    distance to the triangle's plane (as ``plane_distances``); margin how far that plane point
     lies inside the triangle (metres, in the plane): inside, its distance from the nearest edge;
     outside, minus its distance from the triangle (from the nearest point of an edge, not of the
     edge's line: behind the sharp corner of a sliver the lines stay near for hundreds of um);

@@ -111,7 +111,8 @@ import h5py
 import numpy as np
 import yaml
 
-from nbvdata.grid import probability
+from nbvdata.errors import UserError
+from nbvdata.logodds import probability
 from nbvdata.text import plural
 
 SCHEMA_VERSION = 1
@@ -158,7 +159,7 @@ VALUE_RULES = {"grid_palette": "probability", "gains": "fraction", "overlaps": "
                "next_view": "view or none", "grids": "code"}
 
 
-class ShardError(ValueError):
+class ShardError(UserError):
     """A shard that cannot be read; the message names the file and the fix."""
 
 

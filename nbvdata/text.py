@@ -13,3 +13,9 @@ def plural(count: int, noun: str, many: str | None = None, spec: str = "") -> st
     if many is None:
         many = noun + ("es" if noun.endswith(("s", "sh", "x", "z")) else "s")
     return f"{count:{spec}} {noun if count == 1 else many}"
+
+
+def some_names(names: list[str], shown: int = 3) -> str:
+    """The first ``shown`` names and how many more: one line however many."""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(names[:shown]) + more

@@ -8,16 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
+from nbvdata.errors import UserError
+
 NPY_MAGIC = b"\x93NUMPY"
 ZIP_MAGIC = b"PK\x03\x04"
 ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
 
 
-class NpyError(ValueError):
+class NpyError(UserError):
     """A file that is not one plain numpy array; the message names the file and the fix."""
 
 
-class GridError(ValueError):
+class GridError(UserError):
     """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
 
 

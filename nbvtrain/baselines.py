@@ -19,7 +19,7 @@ import torch
 
 from nbvdata.shards import ShardError
 from nbvdata.views import farthest_view
-from nbvtrain.data import ShardSet, load_view_states, to_grids
+from nbvtrain.training_data import ShardSet, load_view_states, to_grids
 from nbvtrain.metrics import evaluate, unit
 
 

@@ -1,7 +1,7 @@
 """Checkpoints of ``nbvtrain fit``: plain data only, written atomically, read without running code.
 
 A checkpoint is a dict of plain data: ``model`` (registry name), ``task``, ``epoch``,
-``config`` (the TrainConfig as a dict), ``view_radius``, ``scene`` (``nbvtrain.scene``: the
+``config`` (the TrainConfig as a dict), ``view_radius``, ``scene`` (``nbvtrain.trained_scene``: the
 grid and views of its shards, None when unknown), ``state_dict`` and ``optimizer`` (tensors,
 numbers, lists), ``history`` (one dict of numbers per epoch) and ``target``; a score network's
 also ``view_units`` ((V, 3) float64 tensor: the candidate views it scores, unit directions), a
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbvdata.shards import ShardError
+from nbvdata.errors import UserError
 from nbvtrain.models import MODELS, NBVNet, ScoreNet, build_model
 
 INFERENCE_KEYS = ("model", "epoch", "config", "state_dict")
@@ -36,7 +36,7 @@ LEGACY_MAGIC = pickle.dumps(torch.serialization.MAGIC_NUMBER, protocol=2)
 """How a checkpoint in torch's format before 1.6 (a sequence of pickles) starts."""
 
 
-class CheckpointError(ShardError):
+class CheckpointError(UserError):
     """A checkpoint that cannot be read or trusted; the one-line message names the fix."""
 
 

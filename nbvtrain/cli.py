@@ -19,13 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata.commandline import (Integer, Number, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
-                                  non_negative_int, positive_float, positive_int)
+                                  non_negative_int, positive_float, positive_int, run_command)
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
 from nbvdata.userarrays import NpyError, read_npy
 from nbvtrain import __version__
-from nbvtrain.sensordata import SensorDataError
 
 INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
                  "--index-url https://download.pytorch.org/whl/cpu)")
@@ -90,7 +89,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
                 raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
             grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
             if (predictor.view_units is not None or reads_scans) and shard.has("last_view"):
-                from nbvtrain.data import load_view_states
+                from nbvtrain.training_data import load_view_states
 
                 state = load_view_states([args.grid], poses="nearest")[args.index]
                 if reads_scans:  # where the sensor has been: the scanned candidate views
@@ -205,7 +204,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_baselines(args: argparse.Namespace) -> int:
     """Score the mean-direction, nearest-neighbour and farthest-view predictors on a split, as fit would make it."""
     from nbvtrain.baselines import BASELINES, Skipped
-    from nbvtrain.data import load_shards, split_indices
+    from nbvtrain.training_data import load_shards, split_indices
     from nbvtrain.metrics import format_ratio
 
     data = load_shards(shard_files(args.shards), args.memory_limit_gb, args.mixed_scenes)
@@ -233,21 +232,22 @@ def cmd_baselines(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Reconstruct unseen objects in closed loop with each planner; coverage.csv, summary, plots."""
     from nbvdata.config import SimConfig
-    from nbvdata.generate import mesh_sources, part_sources
+    from nbvdata.sources import mesh_sources, part_sources
     from nbvdata.mesh import MeshError
     from nbvdata.views import view_sphere
     from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
-    from nbvtrain.planners import PLANNERS, build_planners
+    from nbvtrain.planners import PLANNERS, build_planners, default_planners
 
-    names = [name.strip() for name in args.planners.split(",") if name.strip()]
+    given = args.planners if args.planners is not None else ",".join(default_planners())
+    names = [name.strip() for name in given.split(",") if name.strip()]
     unknown = [name for name in names if name not in PLANNERS and ":" not in name]
     if unknown or not names:
-        raise ConfigError(f"--planners {args.planners!r}: choose from {','.join(PLANNERS)}, or a policy "
+        raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy "
                           "module:function")
     config = load_config(SimConfig, args.config, args.overrides)
     if args.rerun is not None:
         try:
-            import nbvdata.record  # noqa: F401  (missing: said before any reconstruction)
+            import nbvdata.rerun  # noqa: F401  (missing: said before any reconstruction)
         except ImportError as error:
             raise ConfigError(f"--rerun: {error}") from None
     selection = {}
@@ -347,7 +347,6 @@ def cmd_release(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> Parser:
-    from nbvtrain.models import MODELS
     from nbvtrain.release import TASKS, released_files
 
     # what commands use without a checkpoint: the package's released network of each task
@@ -358,6 +357,18 @@ def build_parser() -> Parser:
     parser = Parser(prog="nbvtrain", description=summary)
     parser.add_argument("--version", action="version", version=f"nbvtrain {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_fit(sub, released)
+    _add_predict(sub, released)
+    _add_plan(sub, released)
+    _add_baselines(sub, released)
+    _add_evaluate(sub, released)
+    _add_release(sub, released)
+    return parser
+
+
+def _add_fit(sub, released: dict[str, str]) -> None:
+    """``fit``: its options."""
+    from nbvtrain.models import MODELS
 
     fit = sub.add_parser("fit", help="train a network on shards (files or folders)")
     fit.add_argument("shards", type=Path, nargs="*", help="shard files or folders of shards, or one published "
@@ -406,6 +417,8 @@ def build_parser() -> Parser:
                      help="show a progress bar (default: on a terminal)")
     fit.set_defaults(func=cmd_fit)
 
+def _add_predict(sub, released: dict[str, str]) -> None:
+    """``predict``: its options."""
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid or cloud, as JSON")
     predict.add_argument("grid", type=Path, help="a .npy of one (32, 32, 32) grid or of (B, 32, 32, 32) grids "
                          "(probabilities, 0.5 = unknown; B grids print a JSON list of B answers), or a shard; for a "
@@ -428,6 +441,8 @@ def build_parser() -> Parser:
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
 
+def _add_plan(sub, released: dict[str, str]) -> None:
+    """``plan``: its options."""
     plan = sub.add_parser("plan", help="the NBV for a robot's scans or OctoMap, in its world frame, as JSON",
                           description="The next-best-view for an object in a robot's world frame, from its scans "
                           "(clouds with sensor poses) or an OctoMap: the data is cropped to the object's box, "
@@ -464,6 +479,8 @@ def build_parser() -> Parser:
     plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
     plan.set_defaults(func=cmd_plan)
 
+def _add_baselines(sub, released: dict[str, str]) -> None:
+    """``baselines``: its options."""
     baselines = sub.add_parser("baselines", help="mean-direction, nearest-neighbour and farthest-view scores on a split")
     baselines.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     baselines.add_argument("--split", choices=["random", "mesh"], default="random", help="random samples (paper, "
@@ -478,6 +495,8 @@ def build_parser() -> Parser:
                            "together (refused by default, as by fit)")
     baselines.set_defaults(func=cmd_baselines)
 
+def _add_evaluate(sub, released: dict[str, str]) -> None:
+    """``evaluate``: its options."""
     evaluate = sub.add_parser("evaluate", help="closed-loop reconstructions of unseen objects with each planner")
     evaluate.add_argument("--meshes", type=Path, help="folder of meshes, one mesh file, or a .txt list; with "
                           "--manifest the folder the version's meshes lie in or below (e.g. ../shared/meshes)")
@@ -498,10 +517,10 @@ def build_parser() -> Parser:
                           f"released one, {released['regression']})")
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
                           "is released: without one the classification planner is skipped)")
-    evaluate.add_argument("--planners", default="scores,regression,classification,infogain,oracle,setcover,random,farthest",
-                          help="comma-separated, of scores,regression,classification,infogain,oracle,setcover,random,farthest,hybrid "
-                          "(default all but hybrid), and policies on nbvdata.env's observation as module:function or "
-                          "path/to/file.py:function (docs/env.md)")
+    evaluate.add_argument("--planners", help="comma-separated names of registered planners (nbvtrain.planners.PLANNERS: "
+                          "scores, regression, classification, infogain, oracle, setcover, random, farthest, hybrid; "
+                          "default all but hybrid; docs/evaluation.md) and policies on nbvdata.env's observation as "
+                          "module:function or path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
                           "-nostall; off = the paper's behaviour)")
@@ -532,6 +551,8 @@ def build_parser() -> Parser:
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)
 
+def _add_release(sub, released: dict[str, str]) -> None:
+    """``release``: its options."""
     release = sub.add_parser("release", help="write released models and their model card from fit runs",
                              description="Copy the best epochs of fit runs (or chosen checkpoints of them) as float16 "
                              "checkpoints with a model card and reference answers (what ships in nbvtrain/released/).")
@@ -547,7 +568,6 @@ def build_parser() -> Parser:
     release.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "released",
                          help="folder to write (default: the package's nbvtrain/released)")
     release.set_defaults(func=cmd_release)
-    return parser
 
 
 @exit_quietly_when_stdout_closes
@@ -559,14 +579,7 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (ConfigError, ShardError, SensorDataError) as error:
-        print(f"nbvtrain {args.command}: error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"nbvtrain {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return run_command("nbvtrain", args)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from nbvdata.config import ConfigError, _check
+from nbvdata.config import ConfigError, require
 from nbvtrain.models import MODELS, dropout_start_index, layer_names
 
 
@@ -60,25 +60,25 @@ class TrainConfig:
     mixed_scenes: bool = False
     """Train on shards made in different scenes (settings that differ beyond ``episode``: views,
     sensor, grid, ...); refused by default. The checkpoint then records the scene as mixed, with
-    every value its shards had (``nbvtrain.scene``)."""
+    every value its shards had (``nbvtrain.trained_scene``)."""
 
     def __post_init__(self) -> None:
-        _check(self.model in MODELS, f"model={self.model!r}: choose one of {', '.join(MODELS)}")
+        require(self.model in MODELS, f"model={self.model!r}: choose one of {', '.join(MODELS)}")
         try:
             dropout_start_index(self.dropout_from, layer_names(self.model))
         except ValueError as error:
             raise ConfigError(str(error)) from None
-        _check(0 <= self.dropout < 1, f"dropout={self.dropout}: must lie in [0, 1)")
-        _check(self.epochs >= 1, f"epochs={self.epochs}: must be >= 1")
-        _check(self.batch_size >= 1, f"batch_size={self.batch_size}: must be >= 1")
-        _check(self.lr > 0, f"lr={self.lr}: must be > 0")
-        _check(self.score_temperature > 0, f"score_temperature={self.score_temperature}: must be > 0")
-        _check(0 < self.near_best <= 1, f"near_best={self.near_best}: must lie in (0, 1]")
+        require(0 <= self.dropout < 1, f"dropout={self.dropout}: must lie in [0, 1)")
+        require(self.epochs >= 1, f"epochs={self.epochs}: must be >= 1")
+        require(self.batch_size >= 1, f"batch_size={self.batch_size}: must be >= 1")
+        require(self.lr > 0, f"lr={self.lr}: must be > 0")
+        require(self.score_temperature > 0, f"score_temperature={self.score_temperature}: must be > 0")
+        require(0 < self.near_best <= 1, f"near_best={self.near_best}: must lie in (0, 1]")
         regression = [name for name, arch in MODELS.items() if arch.task == "regression"]
-        _check(self.regression_loss == "label" or self.model in regression,
+        require(self.regression_loss == "label" or self.model in regression,
                f"regression_loss={self.regression_loss} with {self.model}: a loss of the regression networks "
                f"({', '.join(regression)}); drop it")
 
-        _check(0 < self.val_fraction < 1, f"val_fraction={self.val_fraction}: must lie in (0, 1)")
-        _check(self.threads >= 0, f"threads={self.threads}: must be >= 0")
-        _check(self.memory_limit_gb >= 0, f"memory_limit_gb={self.memory_limit_gb}: must be >= 0")
+        require(0 < self.val_fraction < 1, f"val_fraction={self.val_fraction}: must lie in (0, 1)")
+        require(self.threads >= 0, f"threads={self.threads}: must be >= 0")
+        require(self.memory_limit_gb >= 0, f"memory_limit_gb={self.memory_limit_gb}: must be >= 0")

@@ -14,7 +14,7 @@ Each item is a dict (the default collate stacks them into a batch)::
     points_count int                 with points=True: how many points were scanned (<= P: the first
                                      points_count rows are all of them)
 
-Samples are read exactly as ``nbvtrain fit`` reads them (``nbvtrain.data.load_shards``: one
+Samples are read exactly as ``nbvtrain fit`` reads them (``nbvtrain.training_data.load_shards``: one
 merged palette, the same global indices, a published version's split parts), so a model trained
 here sees the data fit would. Grids are held in memory as palette codes while they fit in
 ``memory_limit_gb`` (worker processes share them), else each worker process opens the shards
@@ -32,7 +32,7 @@ import torch
 
 from nbvdata.manifest import Published, open_verified
 from nbvdata.shards import Shard, ShardError, shard_files
-from nbvtrain.data import LazyClouds, LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
+from nbvtrain.training_data import LazyClouds, LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
 
 
 class NBVDataset(torch.utils.data.Dataset):
@@ -55,7 +55,7 @@ class NBVDataset(torch.utils.data.Dataset):
         else:
             if part is not None:
                 raise ShardError(f"part={part!r} needs a published manifest (NAME-X.Y.Z.json); on shards, take "
-                                 "indices from nbvtrain.data.split_indices and wrap in torch.utils.data.Subset")
+                                 "indices from nbvtrain.training_data.split_indices and wrap in torch.utils.data.Subset")
             paths = shard_files(sources)
         data = load_shards(paths, memory_limit_gb, mixed_scenes, clouds="NBVDataset(points=True)" if points else None)
         self.paths, self.palette, self.targets = list(paths), data.palette, data.targets

@@ -63,7 +63,7 @@ import yaml
 
 from nbvdata.config import ConfigError, SimConfig, to_dict
 from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
-from nbvdata.generate import MeshSource
+from nbvdata.sources import MeshSource
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
@@ -71,7 +71,7 @@ from nbvdata.setcover import solve_cover
 from nbvtrain.planners import Observation, Planner
 
 if TYPE_CHECKING:
-    from nbvdata.record import RunLog
+    from nbvdata.rerun import RunLog
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
@@ -144,7 +144,7 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
     (None for the start). Only a privileged planner sees the ``Reconstruction``; one that reads
     points gets every point scanned so far (``nbvdata.cloud``, kept as the generator keeps them).
     ``log``: also record every state, with the oracle's scores and the planner's next pose, in a
-    Rerun recording (``nbvdata.record``; it changes no row)."""
+    Rerun recording (``nbvdata.rerun``; it changes no row)."""
     noise, choices = np.random.SeedSequence(seed).spawn(2)
     planner.start(choices)
     state = Reconstruction(scene, None, np.random.default_rng(noise), points=planner.reads_points)
@@ -193,7 +193,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     if rerun is not None:  # recordings a killed evaluation left half-written
-        from nbvdata.claims import sweep_temporaries
+        from nbvdata.files import sweep_temporaries
 
         sweep_temporaries(Path(rerun))
     with _mesh_runner(workers, bar) as run:
@@ -222,7 +222,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
     unless one raised). ``tick(runs)`` counts
     reconstructions; ``threads`` > 0 limits numba, open3d and torch to that many threads
     (parallel workers pass 1). ``rerun``: also write ``rerun``/<mesh>.rrd, every reconstruction
-    under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.record``)."""
+    under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.rerun``)."""
     if threads:
         _limit_threads(threads)
     try:
@@ -256,10 +256,10 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
 
 
 def _recording(folder: Path | None, mesh: str) -> contextlib.AbstractContextManager:
-    """The Rerun recording ``folder``/<mesh>.rrd (``nbvdata.record.Recording``), or None."""
+    """The Rerun recording ``folder``/<mesh>.rrd (``nbvdata.rerun.Recording``), or None."""
     if folder is None:
         return contextlib.nullcontext()
-    from nbvdata.record import Recording
+    from nbvdata.rerun import Recording
 
     return Recording(Path(folder) / f"{mesh}.rrd", mesh)
 

@@ -236,7 +236,7 @@ class ViewScoreNet(ScoreNet):
 
     Views are inputs (their directions), so a grid turned by a quarter turn about z with its
     view directions turned alike is an exact new sample (``turns``: (B,) 0..3 per sample, as
-    ``nbvtrain.data.rotate_quarter_turns`` turns the grids).
+    ``nbvtrain.training_data.rotate_quarter_turns`` turns the grids).
     """
 
     turns = True
@@ -297,7 +297,7 @@ class ViewScoreNet(ScoreNet):
 
 def quarter_turns(vectors: np.ndarray, turns: int) -> np.ndarray:
     """(N, 3) vectors turned by ``turns`` quarter turns about z, (x, y) -> (-y, x) each: the turn
-    ``nbvtrain.data.rotate_quarter_turns`` applies to grids and targets."""
+    ``nbvtrain.training_data.rotate_quarter_turns`` applies to grids and targets."""
     c, s = round(np.cos(turns * np.pi / 2)), round(np.sin(turns * np.pi / 2))
     x, y = vectors[:, 0], vectors[:, 1]
     return np.stack([c * x - s * y, s * x + c * y, vectors[:, 2]], axis=1)

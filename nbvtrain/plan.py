@@ -36,7 +36,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from nbvdata.cloud import ScannedCloud
-from nbvdata.config import ConfigError, SimConfig
+from nbvdata.config import SimConfig
+from nbvdata.errors import UserError
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import Scan
 from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, spread_view, view_sphere
@@ -48,7 +49,7 @@ AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": 
 UP_FIX = "give --up as x, y, z, -x, -y, -z or a vector a,b,c (write --up=-z when it starts with a minus)"
 
 
-class PlanError(ConfigError):
+class PlanError(UserError):
     """Settings or data ``plan`` cannot use; the one-line message names the value and the fix."""
 
 
@@ -294,7 +295,7 @@ def scanned_state(taken: np.ndarray | None, view_units: np.ndarray | None) -> np
     return None if taken is None or view_units is None else scanned_views(taken, view_units)
 
 
-PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
+NETWORK_PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
 """Planner by the checkpoint's task."""
 
 
@@ -304,10 +305,10 @@ def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool =
     path = Path(checkpoint) if checkpoint is not None else released_checkpoint()
     predictor = Predictor(path, device=device, tta=tta)
     task = predictor.model.task
-    if task not in PLANNERS:
+    if task not in NETWORK_PLANNERS:
         raise PlanError(f"{path}: a {task} network, which plan cannot use yet: pass a "
-                        f"{' or '.join(sorted(set(PLANNERS)))} checkpoint")
-    return PLANNERS[task](predictor)
+                        f"{' or '.join(sorted(set(NETWORK_PLANNERS)))} checkpoint")
+    return NETWORK_PLANNERS[task](predictor)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,4 +1,8 @@
-"""Next-best-view planners behind one interface: ``planner.next_pose(observation) -> Pose``.
+"""Next-best-view planners behind one interface: ``planner.next_pose(observation) -> Pose``,
+and their registry: ``PLANNERS`` maps each name ``nbvtrain evaluate --planners`` takes to a
+``PlannerKind`` (what it reads, its options, what it chooses, how it is built); a planner joins it
+with ``@register_planner``, and ``build_planners``, the CLI's check, the docs' table
+(``planner_table``) and the tests are made from it.
 
 A planner decides from what a real robot has, an ``Observation``: the occupancy grid and the
 poses scanned so far. Only the oracle is privileged: it is also handed the simulation's
@@ -62,15 +66,14 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
-import numba
 import numpy as np
 
 from nbvdata.cloud import reduce_cloud
 from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
-from nbvdata.grid import _walk_start, _walk_step
+from nbvdata.grid import ray_information
 from nbvdata.sensor import camera_rays
 from nbvdata.views import (FIXED_LAYOUTS, Pose, ViewSet, farthest_view, look_at_rotations, scanned_views,
                            sphere_positions, spread_view)
@@ -80,8 +83,9 @@ from nbvtrain.scores import pick, standardise
 if TYPE_CHECKING:
     from nbvtrain.predict import Predictor
 
-PLANNERS = ("scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "farthest", "hybrid")
-LEARNED = ("scores", "regression", "classification")  # planners of a checkpoint, named by its task
+READS = {"grid": "the grid", "poses": "the poses scanned", "points": "the points scanned",
+         "seed": "a seeded generator", "scene": "the simulation (privileged: an upper bound, not a method)"}
+"""What a planner may decide from (``PlannerKind.reads``), in the docs' words."""
 
 
 @dataclass(frozen=True)
@@ -125,14 +129,14 @@ class LearnedPlanner(Planner):
     ``nbvtrain.predict``; for scores also several checkpoints, an ensemble. ``views``: the run's
     candidate views (a score network's picks and the no-stall rule are views of it); ``config``:
     the run's settings, which a checkpoint that records its training scene must match
-    (``nbvtrain.scene.check_scene``); ``tta``: quarter-turn test-time averaging (refused where it
+    (``nbvtrain.trained_scene.check_scene``); ``tta``: quarter-turn test-time averaging (refused where it
     is not exact). The name says which: ``scores``, ``scores-ens2``, ``regression-tta``, ..."""
 
     def __init__(self, checkpoint: str | Path | Sequence[str | Path], radius: float, expect: str,
                  views: ViewSet | None = None, no_stall: bool = False, config: SimConfig | None = None,
                  tta: bool = False, spread: float | None = None):
         from nbvtrain.predict import Predictor
-        from nbvtrain.scene import check_scene
+        from nbvtrain.trained_scene import check_scene
 
         paths = [Path(checkpoint)] if isinstance(checkpoint, (str, Path)) else [Path(path) for path in checkpoint]
         if not paths:
@@ -479,7 +483,7 @@ class InfoGainPlanner(Planner):
         probabilities = np.ascontiguousarray(probabilities, dtype=np.float32)
         information = np.zeros(self._ends.shape[:2])
         first = np.zeros(self._ends.shape[:2], dtype=np.int8)
-        _ray_information(self._origins, self._ends, probabilities, self.grid.resolution, -(self.grid.size // 2),
+        ray_information(self._origins, self._ends, probabilities, self.grid.resolution, -(self.grid.size // 2),
                          self._box[0], self._box[1], self.unknown[0], self.unknown[1], self._scratch,
                          information, first)
         return InfoGainScores(information.sum(axis=1), (first == 1).sum(axis=1), (first == 2).sum(axis=1))
@@ -497,91 +501,153 @@ class InfoGainPlanner(Planner):
         return self.views[self.best_view(observation.probabilities)]
 
 
-@numba.njit(cache=True, inline="always")
-def _entropy(p):
-    q = np.float64(p)
-    return -(q * math.log(q) + (1.0 - q) * math.log(1.0 - q))
+@dataclass(frozen=True)
+class PlannerKind:
+    """A registered planner. ``name``: what ``--planners`` names; ``reads``: what it decides from
+    (keys of ``READS``; "scene" only for a privileged planner); ``options``: the flags that change
+    it; ``chooses``: what it picks, for the docs' table; ``default``: in ``nbvtrain evaluate``'s
+    default list; ``build``: ``PlannerContext`` -> its planners (one, or one per option value)."""
+
+    name: str
+    reads: tuple[str, ...]
+    options: tuple[str, ...]
+    chooses: str
+    default: bool
+    build: Callable[["PlannerContext"], list[Planner]]
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
-def _ray_information(origins, ends, probabilities, resolution, first_key, box_low, box_high, unknown_low,
-                     unknown_high, scratch, information, first):
-    """Walk every ray of every view (origins (V, 3), ends (V, N, 3) float32) with OctoMap's DDA
-    until the first occupied voxel. Writes information[v, r] (entropy of the unknown voxels
-    passed inside the box) and first[v, r]: 1 when the first non-free box voxel met is occupied,
-    2 when it is unknown, 0 when the ray meets neither."""
-    n = probabilities.shape[0]
-    views, rays = ends.shape[0], ends.shape[1]
-    for index in numba.prange(views * rays):
-        v, r = index // rays, index % rays
-        ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
-        (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length,
-         was_inside) = _walk_start(ox, oy, oz, ends[v, r, 0], ends[v, r, 1], ends[v, r, 2], resolution,
-                                   first_key, scratch)
-        total, met = 0.0, 0
-        while active:
-            active, k0, k1, k2, t0, t1, t2, was_inside = _walk_step(
-                k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length, was_inside,
-                first_key, scratch)
-            i, j, k = k0 - first_key, k1 - first_key, k2 - first_key
-            if not (active and 0 <= i < n and 0 <= j < n and 0 <= k < n):
-                continue
-            p = probabilities[i, j, k]
-            in_box = box_low <= i < box_high and box_low <= j < box_high and box_low <= k < box_high
-            if p > 0.5:
-                if in_box and met == 0:
-                    met = 1
-                break
-            if in_box and unknown_low <= p <= unknown_high:
-                total += _entropy(p)
-                if met == 0:
-                    met = 2
-        information[v, r] = total
-        first[v, r] = met
+PLANNERS: dict[str, PlannerKind] = {}
+"""Every registered planner, by name, in the order they registered (the docs' and the CLI's)."""
+
+
+def register_planner(name: str, reads: Sequence[str], chooses: str, options: Sequence[str] = (),
+                     default: bool = True) -> Callable:
+    """Decorator: register ``build(context) -> list[Planner]`` as the planner ``name``."""
+    unknown = set(reads) - set(READS)
+    if unknown:
+        raise ValueError(f"planner {name}: reads {sorted(unknown)}, not among {sorted(READS)}")
+
+    def register(build: Callable[["PlannerContext"], list[Planner]]) -> Callable:
+        PLANNERS[name] = PlannerKind(name, tuple(reads), tuple(options), chooses, default, build)
+        return build
+    return register
+
+
+def default_planners() -> list[str]:
+    """The names ``nbvtrain evaluate`` runs when ``--planners`` is not given."""
+    return [name for name, kind in PLANNERS.items() if kind.default]
+
+
+class Skipped(Exception):
+    """A planner that cannot be built here (no checkpoint for its task): the message says why."""
+
+
+@dataclass(frozen=True)
+class PlannerContext:
+    """What the planners are built from: the simulation settings, the run's candidate views, the
+    checkpoints by task (None: the released model) and the evaluation's options."""
+
+    config: SimConfig
+    views: ViewSet
+    checkpoints: dict[str, Path | Sequence[Path] | None]
+    no_stall: bool = False
+    tta: bool = False
+    hybrid_weights: Sequence[float] = (1.0,)
+    hybrid_stride: int = 4
+    spread: float | None = None
+
+    def checkpoint(self, task: str) -> Path | Sequence[Path]:
+        """The checkpoint(s) of ``task``: given, else the released one; ``Skipped`` when neither."""
+        from nbvtrain.release import NoReleasedModel, released_checkpoint
+
+        path = self.checkpoints.get(task)
+        if path is not None:
+            return path
+        try:
+            return released_checkpoint(task)
+        except NoReleasedModel as reason:
+            raise Skipped(str(reason)) from None
+
+    def learned(self, task: str) -> list[Planner]:
+        config = self.config
+        return [LearnedPlanner(self.checkpoint(task), config.views.radius, task, self.views, self.no_stall, config,
+                               self.tta, self.spread)]
+
+
+register_planner("scores", ("grid", "poses"), "the candidate view with the highest score of a candidate-score network "
+                 "(default the released one) among those not scanned yet (each scanned pose marks its nearest "
+                 "candidate view): it never repeats a view; a point-cloud network (`nbvscore-pc`) reads the points "
+                 "scanned instead of the grid",
+                 options=("--score-checkpoint A.pt[,B.pt]: an ensemble, `scores-ens2`", "--tta"))(
+    lambda context: context.learned("scores"))
+register_planner("regression", ("grid",), "the network's direction as it is (not snapped to a candidate), at the view "
+                 "radius, looking at the centre (default the released one; `nbvnet-4-3-scans` also reads the poses "
+                 "scanned)",
+                 options=("--checkpoint", "--no-stall: `regression-nostall`", "--spread W: `regression-spreadW`",
+                          "--tta"))(lambda context: context.learned("regression"))
+register_planner("classification", ("grid",), "the NBV-Net class view (the authors' 14 spiral points; none is "
+                 "released)", options=("--class-checkpoint", "--no-stall", "--spread W", "--tta"))(
+    lambda context: context.learned("classification"))
+register_planner("infogain", ("grid",), "Kriegel et al. 2012 over 20 views laid out like the candidates: the view whose "
+                 "rays pass the most entropy of unknown voxels in the object's box before the first occupied voxel "
+                 "(`nbvdata.grid.ray_information`), among those whose estimated overlap passes the rule")(
+    lambda context: [InfoGainPlanner(context.config.scene_grid, context.config.sensor, context.config.views.radius,
+                                     context.config.mesh.object_size, context.config.oracle.min_overlap,
+                                     layout=context.config.views.layout)])
+register_planner("oracle", ("scene",), "the exhaustive ground truth over all candidate views (when no view is valid, "
+                 "the most informative one)")(
+    lambda context: [OraclePlanner(context.views, context.config.oracle.min_overlap)])
+register_planner("setcover", ("scene",), "SCVP's one-shot plan: the set cover of its first state (docs/setcover.md), "
+                 "scanned most new surface first; then the view adding the most")(
+    lambda context: [SetCoverPlanner(context.views, context.config.oracle.cover_node_limit)])
+register_planner("random", ("seed",), "a uniformly random candidate view: a lower bound")(
+    lambda context: [RandomPlanner(context.views)])
+register_planner("farthest", ("poses",), "the unscanned candidate view farthest in angle from every scanned pose (greedy "
+                 "farthest-point sampling of the view sphere): what spreading the views alone covers, without the grid")(
+    lambda context: [FarthestPlanner(context.views)])
+register_planner("hybrid", ("grid", "poses"), "the score network's scores plus a weight times information gain, both "
+                 "standardised over the unscanned candidate views, one planner per weight (`hybrid-w1`, ...)",
+                 options=("--hybrid-weight W[,W...]",), default=False)(
+    lambda context: [HybridPlanner(context.checkpoint("scores"), context.config, context.views, weight, context.tta,
+                                   context.hybrid_stride) for weight in context.hybrid_weights])
+
+
+def planner_table() -> list[str]:
+    """The docs' table of the registered planners (docs/evaluation.md holds it verbatim)."""
+    lines = ["| planner | decides from | chooses | options |", "|---|---|---|---|"]
+    for kind in PLANNERS.values():
+        reads = " and ".join(READS[key] for key in kind.reads)
+        extra = "" if kind.default else " (not in the default list)"
+        lines.append(f"| `{kind.name}` | {reads} | {kind.chooses}{extra} | {'; '.join(kind.options) or '-'} |")
+    lines.append("| `module:function` | the grid and the poses scanned (the environment's observation) | a policy's "
+                 "candidate view or direction (`PolicyPlanner`, e.g. trained by RL) | - |")
+    return lines
 
 
 def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                    checkpoints: dict[str, Path | Sequence[Path] | None], no_stall: bool = False, tta: bool = False,
                    hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4,
                    spread: float | None = None) -> tuple[list[Planner], list[str]]:
-    """The named planners, and a message for each learned one skipped for want of a checkpoint.
+    """The named planners (registered ones, and ``module:function`` policies), and a message for
+    each one skipped for want of a checkpoint. ConfigError for a name not registered, listing those
+    that are.
 
     ``checkpoints``: task (scores, regression, classification) -> checkpoint file (scores: also
     several, an ensemble), None for the released model of that task (``nbvtrain.release``) where
     there is one; ``hybrid`` takes the scores' and gives one planner per weight of
     ``hybrid_weights``. ``tta``: quarter-turn averaging for every learned planner; ``spread``: the
     spread rule's weight for regression and classification (``LearnedPlanner``)."""
-    from nbvtrain.release import NoReleasedModel, released_checkpoint
-
+    context = PlannerContext(config, views, checkpoints, no_stall, tta, tuple(hybrid_weights), hybrid_stride, spread)
     planners, skipped = [], []
     for name in names:
-        if name in LEARNED or name == "hybrid":
-            task = "scores" if name == "hybrid" else name
-            path = checkpoints.get(task)
-            if path is None:
-                try:
-                    path = released_checkpoint(task)
-                except NoReleasedModel as reason:
-                    skipped.append(f"{name}: skipped, {reason}")
-                    continue
-            if name == "hybrid":
-                planners += [HybridPlanner(path, config, views, weight, tta, hybrid_stride)
-                             for weight in hybrid_weights]
-            else:
-                planners.append(LearnedPlanner(path, config.views.radius, name, views, no_stall, config, tta, spread))
-        elif name == "infogain":
-            planners.append(InfoGainPlanner(config.scene_grid, config.sensor, config.views.radius, config.mesh.object_size,
-                                            config.oracle.min_overlap, layout=config.views.layout))
-        elif name == "oracle":
-            planners.append(OraclePlanner(views, config.oracle.min_overlap))
-        elif name == "setcover":
-            planners.append(SetCoverPlanner(views, config.oracle.cover_node_limit))
-        elif name == "random":
-            planners.append(RandomPlanner(views))
-        elif name == "farthest":
-            planners.append(FarthestPlanner(views))
-        elif ":" in name:
+        if ":" in name:
             planners.append(PolicyPlanner(name, views))
-        else:
-            raise ConfigError(f"unknown planner {name!r}: choose from {', '.join(PLANNERS)}")
+            continue
+        kind = PLANNERS.get(name)
+        if kind is None:
+            raise ConfigError(f"unknown planner {name!r}: choose from {', '.join(PLANNERS)}, or a policy module:function")
+        try:
+            planners += kind.build(context)
+        except Skipped as reason:
+            skipped.append(f"{name}: skipped, {reason}")
     return planners, skipped

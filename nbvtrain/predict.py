@@ -55,7 +55,7 @@ class Predictor:
     """A checkpoint loaded for inference (eval mode, no gradients).
 
     ``tta``: quarter-turn test-time averaging, where it is exact: the grid is also turned by 1, 2
-    and 3 quarter turns about z (``nbvtrain.data.rotate_quarter_turns``), each turned grid is an
+    and 3 quarter turns about z (``nbvtrain.training_data.rotate_quarter_turns``), each turned grid is an
     exact sample of the same state turned, and the four answers are turned back and averaged: a
     regression network's positions turned back by the inverse turn, a score network that takes
     its views as inputs (``nbvscore-3``, ``ScoreNet.turns``) scoring each view at its turned

@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from nbvdata.config import ConfigError
+from nbvdata.errors import UserError
 
 TASKS = ("scores", "regression")
 CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
@@ -35,7 +36,7 @@ NOTES = "How they were chosen"  # the card's section of ``release(notes=...)``
 KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
 
 
-class NoReleasedModel(ConfigError):
+class NoReleasedModel(UserError):
     """No released model is available for a task; the message says what to pass instead."""
 
 

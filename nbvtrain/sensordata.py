@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from nbvdata.errors import UserError
 from nbvdata.text import plural
 from nbvdata.userarrays import NpyError, read_npy
 
@@ -70,7 +71,7 @@ NO_NAN_FIX = ("drop them (pixels without a return), e.g. points[np.isfinite(poin
               "return may instead carry a point beyond the maximum range along it, which carves free space")
 
 
-class SensorDataError(ValueError):
+class SensorDataError(UserError):
     """A cloud, scans file or OctoMap that cannot be used; the one-line message names the fix."""
 
 

@@ -45,13 +45,14 @@ import yaml
 from torch import nn
 
 from nbvdata.config import ConfigError, from_dict, to_dict, to_yaml
+from nbvdata.errors import UserError
+from nbvdata.files import sha256_file
 from nbvdata.manifest import Published, open_verified_for
-from nbvdata.mesh import sha256_file
 from nbvdata.text import plural
 from nbvtrain.checkpoint import RESUME_KEYS, CheckpointError, load_checkpoint, model_from, restore, save_checkpoint
 from nbvtrain.config import TrainConfig
 from nbvdata.shards import CLOUDS, ShardError
-from nbvtrain.data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
+from nbvtrain.training_data import (ShardSet, load_shards, load_view_states, published_split, rotate_quarter_turns,
                            split_indices, to_grids)
 from nbvtrain.metrics import evaluate, format_ratio
 from nbvtrain.models import (NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count,
@@ -78,7 +79,7 @@ class _StopRequested(Exception):
     """Raised by the training loop at a batch boundary after a Ctrl-C."""
 
 
-class TrainingDiverged(ConfigError):
+class TrainingDiverged(UserError):
     """The loss became NaN or infinite: nothing of the step is saved; the message names the fix."""
 
 
@@ -519,10 +520,10 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                        "seconds": time.perf_counter() - started, "train_samples_per_s": len(order) / train_seconds,
                        "machine": machine(device)}
                 history.append(row)
-                _save(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
+                save_training_state(out / "last.pt", model, optimizer, config, history, epoch, *_recorded(data))
                 if row["val_loss"] < best:
                     best = row["val_loss"]
-                    _save(out / "best.pt", model, optimizer, config, history, epoch, *_recorded(data))
+                    save_training_state(out / "best.pt", model, optimizer, config, history, epoch, *_recorded(data))
                 _write_csv(out / "metrics.csv", history)
                 _plot(out / "curves.png", history, config.model)
                 log(f"epoch {epoch}: train {row['train_loss']:.5f}  val {row['val_loss']:.5f}  "
@@ -531,7 +532,7 @@ def _train(model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, data: Sha
                 stop.check()
         except _StopRequested:  # at a batch boundary: the state there, to continue exactly
             within = done is not None and done.epoch == len(history) + 1 and done.batches > 0
-            _save(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data),
+            save_training_state(out / "last.pt", model, optimizer, config, history, len(history), *_recorded(data),
                   partial=done.partial() if within else None)
             raise Interrupted(out / "last.pt", len(history)) from None
         except KeyboardInterrupt:  # anywhere, perhaps inside a batch: last.pt stays the last state saved whole
@@ -709,11 +710,12 @@ def _validate(model: NBVNet | ScoreNet, data: ShardSet, taken: np.ndarray | None
     return {"val_loss": loss / len(val_idx), **{f"val_{k}": v for k, v in scores.items()}}
 
 
-def _save(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer, config: TrainConfig,
+def save_training_state(path: Path, model: NBVNet | ScoreNet, optimizer: torch.optim.Optimizer,
+                        config: TrainConfig,
           history: list[dict], epoch: int, view_radius: float, scene: dict | None = None,
           view_units: np.ndarray | None = None, points: int | None = None, partial: dict | None = None) -> None:
     """A checkpoint: weights, optimiser, settings, model name, history, the scene it was trained in
-    (``nbvtrain.scene``), for a score network its (V, 3) candidate views and for a point network the
+    (``nbvtrain.trained_scene``), for a score network its (V, 3) candidate views and for a point network the
     size of its clouds (``points``); ``partial``: how far the next epoch had come (``EpochProgress``);
     plain data, written atomically."""
     state = {"model": model.name, "task": model.task, "epoch": epoch, "config": to_dict(config),

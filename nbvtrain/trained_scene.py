@@ -19,6 +19,9 @@ from __future__ import annotations
 
 from nbvdata.config import ConfigError, SimConfig, from_dict, to_dict
 
+__all__ = ["SceneMismatch", "scene_record", "scene_record_of", "mixed_scene_record", "scene_settings",
+           "scene_difference", "check_scene"]
+
 SCENE_KEYS = ("grid_size", "grid_extent", "views_count", "views_radius", "views_layout")
 NOT_SCENE = ("episode", "state")  # sections of a shard's settings that shards of one scene may differ in
 

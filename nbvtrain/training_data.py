@@ -18,7 +18,11 @@ from nbvdata.manifest import Published, mesh_split, random_split
 from nbvdata.shards import Shard, ShardError, view_state  # noqa: F401 (view_state: public here too)
 from nbvdata.text import plural
 from nbvtrain.metrics import nearest_view
-from nbvtrain.scene import mixed_scene_record, scene_difference, scene_record_of
+from nbvtrain.trained_scene import mixed_scene_record, scene_difference, scene_record_of
+
+__all__ = ["InMemoryGrids", "InMemoryClouds", "LazyClouds", "LazyGrids", "ShardSet", "load_clouds", "load_shards",
+           "load_view_states", "nearest_views", "split_indices", "published_split", "rotate_quarter_turns",
+           "to_grids", "view_state"]
 
 
 class InMemoryGrids:
@@ -136,7 +140,7 @@ class ShardSet:
     valid        : (N, V) bool, each view's overlap >= its shard's ``oracle.min_overlap`` (None with gains)
     view_units   : (V, 3) float64 unit candidate positions (None with gains)
     view_radius  : metres from the object centre to the views
-    scene        : the grid and view settings the shards were made with (``nbvtrain.scene.scene_record``),
+    scene        : the grid and view settings the shards were made with (``nbvtrain.trained_scene.scene_record``),
                    None when a shard records none (imported data), ``mixed_scene_record`` when they
                    were made in several scenes (``load_shards(mixed_scenes=True)``)
     clouds       : the partial clouds (``load_clouds``: ``take(indices)`` -> (B, P, 3)), or None when
@@ -173,7 +177,7 @@ class ShardSet:
 def load_shards(paths: list[Path], memory_limit_gb: float = 8.0, mixed_scenes: bool = False,
                 clouds: str | None = None, grids: bool = True) -> ShardSet:
     """Open ``paths`` (shard files) as one ``ShardSet``; raises ShardError naming a bad shard, or
-    two shards made in different scenes (``nbvtrain.scene.scene_difference``) unless
+    two shards made in different scenes (``nbvtrain.trained_scene.scene_difference``) unless
     ``mixed_scenes``.
 
     ``clouds``: what reads the shards' partial clouds (a point network's name, for messages): they

@@ -11,9 +11,9 @@ import yaml
 from numpy.lib import format as npy_format
 
 from conftest import DATASET
-from nbvdata import legacy
+from nbvdata import authors as legacy
 from nbvdata.cli import main
-from nbvdata.legacy import ROW, LegacyError, import_legacy
+from nbvdata.authors import ROW, AuthorsDataError, import_legacy
 from nbvdata.shards import OPTIONAL, Shard
 
 KNOWN = [[1000, 3000, 3000, 5000], [2000], [500, 600, 9000], [4000, 4001], [100, 200, 300, 400, 30000]]
@@ -124,7 +124,7 @@ def test_resume_skips_complete_shards_and_refuses_other_imports(tmp_path, rng):
     report = import_legacy(volumes_path, poses_path, out, rows_per_shard=4, show_progress=False)
     assert report.written == ["legacy-00002.h5"] and len(report.skipped) == 3 and len(report.run_lengths) == 5
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
-    with pytest.raises(LegacyError, match=r"legacy-00000\.h5: holds .*rows 0-4.*rows 0-6.*new --out folder"):
+    with pytest.raises(AuthorsDataError, match=r"legacy-00000\.h5: holds .*rows 0-4.*rows 0-6.*new --out folder"):
         import_legacy(volumes_path, poses_path, out, rows_per_shard=6, show_progress=False)
 
 

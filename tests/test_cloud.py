@@ -13,7 +13,8 @@ from nbvdata.cli import main
 from nbvdata.cloud import ScannedCloud, farthest_points, farthest_points_reference, reduce_cloud
 from nbvdata.config import ConfigError, MeshConfig, SensorConfig, SimConfig, ViewConfig, load_config, FIXED_LAYOUT_COUNTS
 from nbvdata.episode import Reconstruction, ViewCache, scene_rng
-from nbvdata.generate import builtin_sources, generate
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources
 from nbvdata.mesh import load_mesh
 from nbvdata.sensor import EDGE_TOLERANCE, MeshScanner
 from nbvdata.scene import Scene

@@ -23,7 +23,7 @@ from nbvdata.views import view_sphere
 from nbvtrain.cli import build_parser as nbvtrain_parser
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 PARSERS = {"nbvdata": nbvdata_parser, "nbvtrain": nbvtrain_parser}
@@ -135,7 +135,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
                          "--no-progress"]) == 0
     torch.manual_seed(0)
     net = build_model("nbvnet-3-3")
-    _save(folder / "best.pt", net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvnet-3-3"), [], 0, 0.4)
+    save_training_state(folder / "best.pt", net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvnet-3-3"), [], 0, 0.4)
     np.save(folder / "grid.npy", np.full((32, 32, 32), 0.5, dtype=np.float32))
     config = SimConfig()
     pose = view_sphere(config.views)[7]

@@ -13,11 +13,12 @@ from torch.utils.data import DataLoader
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.episode import Reconstruction, ViewCache, run_reconstruction
-from nbvdata.manifest import open_verified, publish
+from nbvdata.manifest import open_verified
+from nbvdata.publish import publish
 from nbvdata.scene import Scene
 from nbvdata.shapes import builtin_object
 from nbvdata.shards import Shard, ShardError
-from nbvtrain.data import load_shards, published_split, to_grids
+from nbvtrain.training_data import load_shards, published_split, to_grids
 from nbvtrain.dataset import NBVDataset, view_state
 from nbvtrain.train import _batch
 
@@ -139,12 +140,12 @@ def test_a_run_missing_a_state_has_no_view_state():
 
 
 def test_the_docs_example_trains(shards, tmp_path, monkeypatch):
-    """The 10 lines of docs/training.md, on a published smoke version in place of builtin-shapes 1.2.0."""
+    """The 10 lines of docs/training.md, on a published smoke version in place of builtin-shapes 1.3.0."""
     page = (ROOT / "docs" / "training.md").read_text()
     example = page.split("## The dataset in your own training code", 1)[1].split("```python\n", 1)[1]
     example = example.split("```", 1)[0]
     assert len(example.strip().splitlines()) <= 11
-    manifest = publish(shards, "builtin-shapes", "1.2.0", tmp_path / "manifests").path
+    manifest = publish(shards, "builtin-shapes", "1.3.0", tmp_path / "manifests").path
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     exec(compile(example, "docs/training.md", "exec"), namespace)

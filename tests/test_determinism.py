@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 
 from nbvdata.config import SensorConfig
-from nbvdata.mesh import sha256_file
+from nbvdata.files import sha256_file
 from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.views import Pose, view_sphere
@@ -122,7 +122,8 @@ def test_a_face_seen_head_on_is_hit_exactly_on_its_plane():
 
 def _smoke_units(*settings: str):
     from nbvdata.config import SimConfig, load_config
-    from nbvdata.generate import builtin_sources, plan_units
+    from nbvdata.generate import plan_units
+    from nbvdata.sources import builtin_sources
 
     config = load_config(SimConfig, SMOKE, ["generate.workers=1", *settings])
     return config, plan_units(builtin_sources(config.mesh)[:3], config)

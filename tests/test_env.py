@@ -20,7 +20,8 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 from nbvdata.config import ConfigError, SimConfig, load_config  # noqa: E402
 from nbvdata.env import ENV_ID, ReconstructEnv  # noqa: E402
 from nbvdata.episode import Reconstruction, start_view  # noqa: E402
-from nbvdata.generate import builtin_sources, generate  # noqa: E402
+from nbvdata.generate import generate  # noqa: E402
+from nbvdata.sources import builtin_sources
 from nbvdata.mesh import MeshError  # noqa: E402
 from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
 from nbvdata.shards import Shard  # noqa: E402

@@ -13,9 +13,9 @@ import yaml
 import torch
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import SimConfig, load_config
+from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.episode import Reconstruction, ViewCache, scene_rng, start_view
-from nbvdata.generate import MeshSource
+from nbvdata.sources import MeshSource
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import Shard, shard_files
@@ -24,10 +24,10 @@ from nbvtrain.config import TrainConfig
 from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, front_view,
                                plot_coverage, reconstruct, start_views, summary_markdown)
 from nbvtrain.models import build_model
-from nbvtrain.planners import (FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner, RandomPlanner,
-                               build_planners)
-from nbvtrain.scene import scene_record
-from nbvtrain.train import _save
+from nbvtrain.planners import (PLANNERS, READS, FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner,
+                               RandomPlanner, build_planners, planner_table)
+from nbvtrain.trained_scene import scene_record
+from nbvtrain.train import save_training_state
 from nbvdata.views import farthest_view, spread_view, view_sphere
 
 from reference_infogain import sampled_scores
@@ -60,8 +60,8 @@ def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
         torch.manual_seed(0)
         model = build_model(name, views=units if name == "nbvscore-3" else None)
         paths[name] = folder / f"{name}.pt"
-        _save(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4,
-              scene_record(config), units)
+        save_training_state(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0,
+                            0.4, scene_record(config), units)
     return paths
 
 
@@ -248,15 +248,33 @@ def _run_guarded(config, scene, planners, meshes, monkeypatch):
 
 
 def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, monkeypatch):
-    planners, _ = build_planners(["scores", "regression", "classification", "infogain", "random", "setcover", "oracle"],
-                                 config,
-                                 scene.views, _learned(checkpoints))
+    """Every registered planner: those that do not read the scene (``PlannerKind.reads``) are not
+    privileged and never touch the simulation while they decide; those that do are privileged."""
+    planners, skipped = build_planners(list(PLANNERS), config, scene.views, _learned(checkpoints))
+    assert not skipped and {p.name.split("-")[0] for p in planners} == set(PLANNERS)
+    for planner in planners:
+        assert planner.privileged == ("scene" in PLANNERS[planner.name.split("-")[0]].reads), planner.name
     report = _run_guarded(config, scene, planners, meshes, monkeypatch)
     assert len(report.rows) == len(planners) * 3 and not report.failures
-    assert isinstance(planners[-1], OraclePlanner)  # privileged: it may read the simulation
     caught = _run_guarded(config, scene, [Cheat(scene)], meshes, monkeypatch)  # the mesh fails, the run goes on
     assert not caught.rows and len(caught.failures) == 1
     assert "raised AssertionError" in caught.failures[0][1] and "a robot planner read oracle.view_counts" in caught.failures[0][1]
+
+
+def test_the_registry_describes_every_planner_and_the_docs_table_is_made_from_it(capsys):
+    for name, kind in PLANNERS.items():
+        assert kind.name == name and kind.reads and set(kind.reads) <= set(READS) and kind.chooses
+    page = (ROOT / "docs" / "evaluation.md").read_text()
+    assert "\n".join(planner_table()) in page, "docs/evaluation.md: paste nbvtrain.planners.planner_table() again"
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    helped = " ".join(capsys.readouterr().out.split())
+    assert all(name in helped for name in PLANNERS)
+
+
+def test_an_unknown_planner_lists_the_registered_ones(config, scene):
+    with pytest.raises(ConfigError, match="unknown planner 'oracel': choose from " + ", ".join(PLANNERS)):
+        build_planners(["oracel"], config, scene.views, {})
 
 
 def test_scanning_a_candidate_pose_live_equals_the_cached_view(scene):
@@ -454,14 +472,14 @@ def test_information_gain_agrees_with_a_sampled_walk(scene, config):
     probabilities = state.grid.probabilities()
     scores = planner.scores(probabilities)
     rays = np.arange(0, planner._ends.shape[1], 7)  # a seventh of the rays: the reference is slow
-    from nbvtrain.planners import _ray_information
+    from nbvdata.grid import ray_information
 
     for view in (0, 9, 19):
         information, known, unknown = sampled_scores(planner, probabilities, view, rays)
         ends = np.ascontiguousarray(planner._ends[view:view + 1, rays])
         fast = np.zeros(ends.shape[:2])
         first = np.zeros(ends.shape[:2], dtype=np.int8)
-        _ray_information(planner._origins[view:view + 1], ends, probabilities, config.scene_grid.resolution,
+        ray_information(planner._origins[view:view + 1], ends, probabilities, config.scene_grid.resolution,
                          -(config.grid.size // 2), *planner._box, *planner.unknown, planner._scratch, fast, first)
         assert fast.sum() == pytest.approx(information, rel=0.01)  # sampling may miss a clipped corner
         assert information > 0

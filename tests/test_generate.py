@@ -20,7 +20,8 @@ import trimesh
 from nbvdata.claims import claim, folder_lock, partial_path
 from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import FAILURES_FILE, builtin_sources, generate, mesh_sources, plan_units
+from nbvdata.generate import FAILURES_FILE, generate, plan_units
+from nbvdata.sources import builtin_sources, mesh_sources
 from nbvdata.shapes import builtin_object
 from nbvdata.shards import Shard, ShardError
 
@@ -522,7 +523,7 @@ def test_exploration_and_policy_errors_are_one_line_and_exit_2(tmp_path, capsys,
 
 
 def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
-    from nbvdata.manifest import publish
+    from nbvdata.publish import publish
 
     shards = tmp_path / "explored"
     generate(sources[:1], shards, _config("generate.workers=1", "episode.explore=0.5"))

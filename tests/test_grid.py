@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 import trimesh
@@ -172,3 +174,31 @@ def test_identical_to_octomap_for_rays_grazing_the_grid_almost_parallel_to_a_fac
     reference = octomap_probabilities([scan], ours.config, FAR)
     assert np.array_equal(ours.probabilities(), reference)
     assert ours.counts()["free"] > 50
+
+
+def test_the_information_gain_walk_sums_the_unknown_voxels_before_the_first_occupied_one():
+    """One ray along x through the middle row of an 8^3 grid of side 1 m: free, three unknown
+    voxels, an occupied one, then unknown again: the walk stops at the occupied voxel, so it sums
+    the entropy of the three (3 ln 2) and says that the first non-free voxel it met was unknown;
+    a box that leaves out voxels 2-3 counts only voxel 4, and with an occupied voxel first it says 1."""
+    from nbvdata.grid import ray_information
+
+    n = 8
+    grid = np.full((n, n, n), 0.3, dtype=np.float32)
+    grid[2:5, 4, 4] = 0.5
+    grid[5, 4, 4] = 0.7
+    grid[6, 4, 4] = 0.5
+    origins = np.array([[-0.6, 0.0625, 0.0625]], dtype=np.float32)
+    ends = np.array([[[0.6, 0.0625, 0.0625]]], dtype=np.float32)
+
+    def walk(probabilities, box=(0, n)):
+        information, first = np.zeros((1, 1)), np.zeros((1, 1), dtype=np.int8)
+        ray_information(origins, ends, probabilities, 1.0 / n, -(n // 2), box[0], box[1], 0.45, 0.55,
+                        np.zeros((n, n, n), dtype=np.bool_), information, first)
+        return information[0, 0], int(first[0, 0])
+
+    assert walk(grid) == pytest.approx((3 * math.log(2), 2))
+    assert walk(grid, box=(4, 8))[0] == pytest.approx(math.log(2))
+    occupied_first = grid.copy()
+    occupied_first[1, 4, 4] = 0.9
+    assert walk(occupied_first) == (0.0, 1)

@@ -15,13 +15,15 @@ import trimesh
 
 from nbvdata.cli import main as nbvdata
 from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import builtin_sources, generate, mesh_sources
-from nbvdata.legacy import import_legacy
-from nbvdata.manifest import (BUILTIN_LICENSE, NOT_RECORDED, compare, load_manifest, mesh_split, next_version,
-                              from_ranges, publish, random_split, to_ranges)
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources, mesh_sources
+from nbvdata.authors import import_legacy
+from nbvdata.manifest import (BUILTIN_LICENSE, NOT_RECORDED, compare, from_ranges, load_manifest, mesh_split,
+                              next_version, random_split, to_ranges)
+from nbvdata.publish import publish
 from nbvdata.shards import Shard
 from nbvtrain.cli import main as nbvtrain
-from nbvtrain.data import load_shards, split_indices
+from nbvtrain.training_data import load_shards, split_indices
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]

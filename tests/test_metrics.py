@@ -10,7 +10,7 @@ import pytest
 
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.shards import shard_files
-from nbvtrain.data import load_shards
+from nbvtrain.training_data import load_shards
 from nbvtrain.metrics import evaluate, gain_ratio
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ from nbvdata.config import SimConfig, load_config, to_dict
 from nbvdata.shards import ShardError
 from nbvtrain.cli import main as nbvtrain
 from nbvtrain.dataset import NBVDataset
-from nbvtrain.scene import SceneMismatch, check_scene, scene_difference
+from nbvtrain.trained_scene import SceneMismatch, check_scene, scene_difference
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = str(ROOT / "configs" / "smoke.yaml")

@@ -22,7 +22,7 @@ from nbvtrain.models import build_model
 from nbvtrain.plan import ObjectFrame, PlanError, draw_plan, plan, up_rotation
 from nbvtrain.predict import NBVPrediction
 from nbvtrain.sensordata import SensorDataError, read_cloud
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXED_CUBE = ROOT / "configs" / "scene-fixed-cube.yaml"
@@ -33,7 +33,7 @@ FORMATS = (".ply", ".pcd", ".xyz", ".npy")
 def _checkpoint(path: Path, model: str = "nbvnet-3-3") -> Path:
     torch.manual_seed(0)
     net = build_model(model)
-    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), [], 0, 0.4)
+    save_training_state(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), [], 0, 0.4)
     return path
 
 
@@ -412,7 +412,7 @@ def _score_checkpoint(path: Path) -> Path:
     net = build_model("nbvscore-fc3", views=units)
     with torch.no_grad():  # make the scanned views the network's favourites
         net.joint_head[-1].bias[list(VIEWS)] += 100.0
-    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvscore-fc3"), [], 0, 0.4, None, units)
+    save_training_state(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model="nbvscore-fc3"), [], 0, 0.4, None, units)
     return path
 
 

@@ -26,9 +26,9 @@ from nbvtrain.evaluate import reconstruct
 from nbvtrain.models import build_model, quarter_turns
 from nbvtrain.planners import HybridPlanner, InfoGainPlanner, LearnedPlanner, Observation
 from nbvtrain.predict import Predictor
-from nbvtrain.scene import scene_record
+from nbvtrain.trained_scene import scene_record
 from nbvtrain.scores import pick, standardise
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -47,7 +47,7 @@ def scene(config) -> Scene:
 
 def _save_model(path: Path, model, config: SimConfig | None, units: np.ndarray) -> Path:
     scene = scene_record(config) if config is not None else None
-    _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=model.name), [], 0, 0.4, scene, units)
+    save_training_state(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=model.name), [], 0, 0.4, scene, units)
     return path
 
 

@@ -12,7 +12,8 @@ import torch
 from nbvdata.cloud import ScannedCloud, reduce_cloud
 from nbvdata.config import SimConfig, load_config
 from nbvdata.episode import Reconstruction, scene_rng
-from nbvdata.generate import builtin_sources, generate
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources
 from nbvdata.scene import Scene
 from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import builtin_object

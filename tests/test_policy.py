@@ -19,7 +19,8 @@ torch = pytest.importorskip("torch", reason="the train extra is not installed: p
 from nbvdata.cli import main  # noqa: E402
 from nbvdata.config import SimConfig, load_config  # noqa: E402
 from nbvdata.episode import Reconstruction, run_seed, scene_rng, start_view  # noqa: E402
-from nbvdata.generate import builtin_sources, generate  # noqa: E402
+from nbvdata.generate import generate  # noqa: E402
+from nbvdata.sources import builtin_sources
 from nbvdata.policy import PolicySource  # noqa: E402
 from nbvdata.scene import Scene  # noqa: E402
 from nbvdata.shapes import builtin_object  # noqa: E402
@@ -29,7 +30,7 @@ from nbvtrain.config import TrainConfig  # noqa: E402
 from nbvtrain.evaluate import reconstruct  # noqa: E402
 from nbvtrain.models import build_model  # noqa: E402
 from nbvtrain.planners import LearnedPlanner, Observation  # noqa: E402
-from nbvtrain.train import _save  # noqa: E402
+from nbvtrain.train import save_training_state  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -46,7 +47,7 @@ def checkpoints(tmp_path_factory) -> dict[str, Path]:
         torch.manual_seed(seed)
         model = build_model(name, views=units if name == "nbvscore-3" else None)
         paths[name if seed < 3 else "other"] = path = folder / f"{name}-{seed}.pt"
-        _save(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4, None, units)
+        save_training_state(path, model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0, 0.4, None, units)
     return paths
 
 
@@ -158,7 +159,7 @@ def test_a_folder_holds_the_runs_of_one_policy(tmp_path, checkpoints, capsys):
     assert main([*argv, "--policy", str(checkpoints["nbvnet-3-3"])]) == 0
     assert "6 shards were already there" in capsys.readouterr().out
 
-    from nbvdata.manifest import publish
+    from nbvdata.publish import publish
 
     card = publish(tmp_path, "rollout", "1.0.0", tmp_path.parent / "manifests").path.with_suffix(".md").read_text()
     assert f"the trained planner nbvnet-3-3 epoch 0 (sha256 `{digest}`) chose" in card

@@ -21,7 +21,7 @@ from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import MODELS, build_model
 from nbvtrain.predict import GridError, Predictor
-from nbvtrain.train import _save
+from nbvtrain.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,7 +30,7 @@ def _checkpoint(path: Path, model: str = "nbvnet-3-3", history: list | None = No
     torch.manual_seed(0)
     units = view_sphere(SimConfig().views).unit_positions if MODELS[model].task == "scores" else None
     net = build_model(model, views=units)
-    _save(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4, None, units)
+    save_training_state(path, net, torch.optim.Adam(net.parameters()), TrainConfig(model=model), history or [], 0, 0.4, None, units)
     return path
 
 

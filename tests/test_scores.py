@@ -123,7 +123,7 @@ def test_scanned_poses_mark_their_candidate_views(rng):
 def test_a_quarter_turn_of_the_grid_turns_each_views_side_alike(rng):
     """nbvscore-3 pools each view's side of the grid; for a grid turned as
     ``rotate_quarter_turns`` turns it, the turned views' sides are the original views' sides."""
-    from nbvtrain.data import rotate_quarter_turns
+    from nbvtrain.training_data import rotate_quarter_turns
     from nbvtrain.models import quarter_turns
 
     units = sphere_positions(50, 1.0, "hemisphere")

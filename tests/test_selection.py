@@ -25,11 +25,14 @@ import torch
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.shards import Shard, view_state
-from nbvdata.generate import generate, mesh_sources
-from nbvdata.manifest import ManifestError, find_part_meshes, load_manifest, publish
+from nbvdata.generate import generate
+from nbvdata.sources import mesh_sources
+from nbvdata.manifest import ManifestError, load_manifest
+from nbvdata.publish import publish
+from nbvdata.sources import find_part_meshes
 from nbvdata.shapes import BUILTIN_SHAPES
 from nbvtrain.cli import main
-from nbvtrain.data import nearest_views
+from nbvtrain.training_data import nearest_views
 
 from conftest import MESHES, need
 

@@ -195,7 +195,7 @@ def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
     """Rays aimed at a crease between two triangles, each reported as hitting one and then the
     other (what two CPUs' Embree kernels may do): the distance to the reported triangle's plane
     differs between the two, the canonical distance does not."""
-    from nbvdata.sensor import TriangleCells, _canonical_distances, _plane_distances
+    from nbvdata.sensor import TriangleCells, _canonical_distances, plane_distances
 
     vertices = np.array([[0, -0.05, 0], [0, 0.05, 0], [-0.04, 0, -0.03], [0.05, 0.01, -0.01]], dtype=np.float32)
     faces = np.array([[0, 1, 2], [1, 0, 3]], dtype=np.uint32)  # a crease along the y axis
@@ -211,7 +211,7 @@ def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
     for f in (0, 1):
         triangle = np.full(200, f, dtype=np.uint32)
         t_cast, t_cloud, canon = np.empty(200), np.empty(200), np.empty(200, dtype=np.int64)
-        _plane_distances(rays, cast, triangle, vertices, faces, t_cast)
+        plane_distances(rays, cast, triangle, vertices, faces, t_cast)
         _canonical_distances(rays, cast, triangle, t_cast, vertices, faces, *cells, t_cloud, canon, np.empty(200))
         answers[f] = t_cast, t_cloud
     assert np.all(np.isfinite(answers[0][1]))
@@ -226,7 +226,7 @@ def test_a_sliver_claims_no_hit_behind_its_sharp_corner():
     of the sliver lies within 3.8 um of both long edges' *lines* (0.1 mm x sin 0.5 deg = 0.87 um),
     though 0.1 mm from the sliver: it must not be a candidate, or the cloud point lands 7 um off
     the surface (up to 0.4 mm for such a sliver: the teddy bear of issue 50)."""
-    from nbvdata.sensor import EDGE_TOLERANCE, TriangleCells, _canonical_distances, _plane_distances
+    from nbvdata.sensor import EDGE_TOLERANCE, TriangleCells, _canonical_distances, plane_distances
 
     half = 0.05 * np.tan(np.radians(0.5))
     vertices = np.array([[0, 0, 7e-6], [0.05, -half, 7e-6], [0.05, half, 7e-6],
@@ -235,7 +235,7 @@ def test_a_sliver_claims_no_hit_behind_its_sharp_corner():
     rays = np.array([[-1e-4, 0, 0.4, 0, 0, -1]], dtype=np.float32)
     cast, reported = np.array([0]), np.array([1], dtype=np.uint32)  # Embree: the plane below
     t_cast, t_cloud, canon = np.empty(1), np.empty(1), np.empty(1, dtype=np.int64)
-    _plane_distances(rays, cast, reported, vertices, faces, t_cast)
+    plane_distances(rays, cast, reported, vertices, faces, t_cast)
     _canonical_distances(rays, cast, reported, t_cast, vertices, faces, *TriangleCells.build(vertices, faces),
                          t_cloud, canon, np.empty(1))
     assert canon[0] == 1 and t_cloud[0] == t_cast[0] == np.float64(np.float32(0.4))
@@ -297,7 +297,7 @@ def test_a_ray_that_grazes_an_outline_gets_the_same_cloud_point_whether_it_hits_
     """Rays within 2e-7 m of a box's silhouette edges, in front of a wall: reported as hitting the
     box (one CPU) or as passing beside it to the wall (another), the canonical triangle alone
     keeps two answers; passing the outline through gives both the wall."""
-    from nbvdata.sensor import _canonical_distances, _plane_distances
+    from nbvdata.sensor import _canonical_distances, plane_distances
 
     box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
     wall = trimesh.creation.box(extents=(0.02, 0.6, 0.6))
@@ -325,7 +325,7 @@ def test_a_ray_that_grazes_an_outline_gets_the_same_cloud_point_whether_it_hits_
     for side, shift in (("box", -1e-6), ("wall", 1e-6)):  # what a ray 1 um to either side meets
         triangles = scanner._triangles(rays_to(corner + shift * across))
         t_cast, t_canonical = np.empty(n), np.empty(n)
-        _plane_distances(rays, cast, triangles, scanner._vertices, scanner._faces, t_cast)
+        plane_distances(rays, cast, triangles, scanner._vertices, scanner._faces, t_cast)
         _canonical_distances(rays, cast, triangles, t_cast, scanner._vertices, scanner._faces, *scanner.cells,
                              t_canonical, np.empty(n, dtype=np.int64), np.empty(n))
         answers[side] = t_canonical, scanner._cloud_distances(rays, cast, triangles, t_cast)

@@ -16,7 +16,8 @@ import yaml
 from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.episode import scene_rng
-from nbvdata.generate import builtin_sources, generate
+from nbvdata.generate import generate
+from nbvdata.sources import builtin_sources
 from nbvdata.oracle import ViewOracle, pack_bits, popcount
 from nbvdata.scene import Scene
 from nbvdata.shards import COVER, Shard
@@ -409,7 +410,7 @@ def test_evaluating_without_floors_leaves_them_out_and_changes_no_row():
 
 
 def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, capsys):
-    from nbvdata.manifest import publish
+    from nbvdata.publish import publish
 
     one, _, _ = cover_shards
     assert main(["inspect", str(one)]) == 0

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from nbvdata.config import SimConfig, load_config
-from nbvdata.grid import OccupancyGrid, probability
+from nbvdata.grid import OccupancyGrid
+from nbvdata.logodds import probability
 from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import builtin_object
 from nbvdata.shards import PER_SAMPLE, GridPalette, Shard, ShardError, write_shard

@@ -21,7 +21,7 @@ from nbvdata.shards import Shard, ShardError
 from nbvdata.views import farthest_view
 from nbvtrain.baselines import Skipped, farthest, mean_direction, mean_vector, nearest_neighbour_indices
 from nbvtrain.cli import main
-from nbvtrain.data import load_shards, load_view_states, rotate_quarter_turns, split_indices
+from nbvtrain.training_data import load_shards, load_view_states, rotate_quarter_turns, split_indices
 from nbvtrain.predict import Predictor
 from nbvtrain.train import _StopOnCtrlC, _StopRequested
 
@@ -446,7 +446,7 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
         assert 0 <= norm <= 3 ** 0.5 and 0 <= ratio <= 1 and 0 <= resultant <= 1 and 1 <= views <= 10
     assert answers[4].split()[-3] == "1.000"  # the labels are the best views
     # imported data (no gains): refused before anything is written
-    from nbvdata.legacy import import_legacy
+    from nbvdata.authors import import_legacy
     directions = np.random.default_rng(0).normal(size=(6, 3))
     np.save(tmp_path / "volumes.npy", np.full((6, 32 ** 3), 0.5))
     units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
