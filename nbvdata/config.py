@@ -47,7 +47,7 @@ class MeshConfig:
 
 # View layouts read from a fixed list of directions (``nbvdata.views.FIXED_LAYOUTS``) and their
 # number of views.
-FIXED_LAYOUT_COUNTS = {"pc-nbv-33": 33, "scvp-32": 32}
+FIXED_LAYOUT_COUNTS = {"pc-nbv-33": 33, "scvp-32": 32, "tammes-128": 128}
 
 
 @dataclass(frozen=True)
@@ -56,12 +56,16 @@ class ViewConfig:
     """Radius of the view sphere around the object centre, in metres (the authors' 0.4 m)."""
     count: int = 500
     """Number of candidate views."""
-    layout: Literal["hemisphere", "sphere", "pc-nbv-33", "scvp-32"] = "hemisphere"
+    layout: Literal["hemisphere", "sphere", "pc-nbv-33", "scvp-32", "tammes-128"] = "hemisphere"
     """"hemisphere": ``count`` Fibonacci-lattice views with z >= 0 (object on a table, as in the
     authors' data); "sphere": all round; "pc-nbv-33": PC-NBV's 33 views (``count`` must be 33;
     ``nbvdata.views.FIXED_LAYOUTS``), turned from their y-up frame to z-up, 8 of them below the
     equator; "scvp-32": SCVP's 32 views (``nbvdata.layout_scvp``), their directions at ``radius``
-    (``count`` must be 32)."""
+    (``count`` must be 32); "tammes-128": ObjView-Bench's 128 directions over the whole sphere
+    (``nbvdata.layout_tammes``; ``count`` must be 128)."""
+    reach: Literal["whole", "hemi"] = "whole"
+    """Which views of the layout a robot can reach (ObjView-Bench's presets): "whole" every one;
+    "hemi" those with z >= 0 (the camera above the table's plane)."""
 
     def __post_init__(self) -> None:
         require(self.radius > 0, f"views.radius={self.radius}: must be > 0 metres")
@@ -274,8 +278,9 @@ class SimConfig:
 # Settings added after datasets were published, whose default leaves the data as it was before
 # them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
 # recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
-NEUTRAL_DEFAULTS = {("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0, ("state", "points"): 0,
-                    ("oracle", "cover"): False, ("oracle", "cover_node_limit"): OracleConfig.cover_node_limit}
+NEUTRAL_DEFAULTS = {("views", "reach"): "whole", ("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0,
+                    ("state", "points"): 0, ("oracle", "cover"): False,
+                    ("oracle", "cover_node_limit"): OracleConfig.cover_node_limit}
 
 
 # ---------------------------------------------------------------------------------------------

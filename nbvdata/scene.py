@@ -29,6 +29,7 @@ class Scene:
     coverage: SurfaceCoverage
     oracle: ViewOracle
     _empty_cover: Cover | None = field(default=None, repr=False)
+    _covers: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, obj: ObjectMesh, config: SimConfig, rng: np.random.Generator, threads: int = 0) -> "Scene":
@@ -44,6 +45,22 @@ class Scene:
         visible = coverage.covered_by_views(scanner, views)
         coverage.observable = visible.any(axis=0)
         return cls(config, obj, views, scanner, coverage, ViewOracle(visible))
+
+    @property
+    def bounding_radius(self) -> float:
+        """Radius (metres) of the sphere about the origin - the views' centre - that holds the
+        object: what a path between views must go round (``nbvdata.paths``)."""
+        vertices = np.asarray(self.object.mesh.vertices, dtype=np.float64)
+        return float(np.sqrt((vertices * vertices).sum(axis=1)).max()) if len(vertices) else 0.0
+
+    def plan_cover(self, covered: np.ndarray) -> Cover:
+        """The set cover of the state whose covered points are ``covered`` ((W,) packed), the
+        solver's optimal set (``solve_cover(..., canonical=False)``), solved once per state: a
+        start's floor and the setcover planner's plan from that start are one solve."""
+        key = covered.tobytes()
+        if key not in self._covers:
+            self._covers[key] = solve_cover(self.oracle, covered, self.config.oracle.cover_node_limit, canonical=False)
+        return self._covers[key]
 
     def empty_cover(self) -> Cover:
         """The set cover of the whole observable surface (no view scanned), solved on the first

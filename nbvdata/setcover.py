@@ -412,12 +412,14 @@ def _lexicographic_cover(rows: np.ndarray, candidates: np.ndarray, size: int, co
 
 
 def solve_cover(oracle: ViewOracle, covered: np.ndarray, node_limit: int, incumbent: tuple[int, ...] = (),
-                lower: int = 0) -> Cover:
+                lower: int = 0, canonical: bool = True) -> Cover:
     """The set-cover label of the state whose covered points are ``covered`` ((W,) packed).
 
     ``incumbent``: views known to cover what is left (a previous state's cover), or nothing;
     ``lower``: a proven lower bound on the optimum. Uses at most ``node_limit`` branch-and-bound
-    nodes (``NodeBudget``)."""
+    nodes (``NodeBudget``). ``canonical`` False keeps the solver's optimal set instead of the
+    lexicographically smallest (the same size and bound, a fraction of the time: an evaluation's
+    floor, a plan; HiGHS's set is deterministic for one HiGHS, not across its versions)."""
     budget = NodeBudget(node_limit)
     remaining = oracle.observable & ~covered
     if popcount(remaining) == 0:
@@ -434,9 +436,9 @@ def solve_cover(oracle: ViewOracle, covered: np.ndarray, node_limit: int, incumb
     views, bound, finished = _smallest(rows, np.flatnonzero(candidates), lower, len(best) - 1, budget)
     if views is None:  # none smaller: the cheap cover is optimal if the solver finished
         return Cover(tuple(sorted(best)), len(best) if finished else min(bound, len(best)), len(greedy))
-    if finished:
-        canonical = _lexicographic_cover(rows, candidates, len(views), views, budget)
-        views = canonical if canonical is not None else views
+    if finished and canonical:
+        smallest = _lexicographic_cover(rows, candidates, len(views), views, budget)
+        views = smallest if smallest is not None else views
     return Cover(tuple(sorted(views)), min(bound, len(views)), len(greedy))
 
 

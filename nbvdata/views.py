@@ -16,6 +16,7 @@ import numpy as np
 
 from nbvdata.config import ViewConfig
 from nbvdata.layout_scvp import scvp_32
+from nbvdata.layout_tammes import tammes_128
 from nbvdata.text import plural
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -160,7 +161,7 @@ def pc_nbv_33() -> np.ndarray:
     return y_up @ Y_UP_TO_Z_UP.T
 
 
-FIXED_LAYOUTS = {"pc-nbv-33": pc_nbv_33, "scvp-32": scvp_32}  # views.layout -> () -> (V, 3) unit directions
+FIXED_LAYOUTS = {"pc-nbv-33": pc_nbv_33, "scvp-32": scvp_32, "tammes-128": tammes_128}  # layout -> () -> (V, 3) units
 
 
 @dataclass(frozen=True)
@@ -191,8 +192,11 @@ class ViewSet:
 
 
 def view_sphere(config: ViewConfig = ViewConfig()) -> ViewSet:
-    """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin."""
+    """The candidate view set of a config: ``count`` views on the sphere, all looking at the origin;
+    with ``reach`` "hemi", only those with z >= 0 (ObjView-Bench's reachability preset), in order."""
     positions = sphere_positions(config.count, config.radius, config.layout)
+    if config.reach == "hemi":
+        positions = positions[positions[:, 2] >= 0]
     return ViewSet(positions, look_at_rotations(positions))
 
 

@@ -1,6 +1,6 @@
 """The ``nbvtrain`` command line: train NBV networks on shards, predict NBV poses, plan the NBV
-from a robot's scans or OctoMap, score the baselines and evaluate planners in closed-loop
-reconstructions.
+from a robot's scans or OctoMap, score the baselines, evaluate planners in closed-loop
+reconstructions and run the field's benchmark protocols.
 
 Expected user errors (a bad setting, a missing or broken shard, checkpoint, cloud or map) print one line
 naming the fix and exit with status 2; Ctrl-C during ``fit`` saves a checkpoint first and
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -303,6 +304,71 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 1 if report.failures else 0
 
 
+def cmd_benchmark(args: argparse.Namespace) -> int:
+    """Run a protocol of the field on a corpus of objects; tables, statistics and plots."""
+    from nbvdata.mesh import MeshError
+    from nbvdata.sources import mesh_sources
+    from nbvdata.views import view_sphere
+    from nbvtrain.benchmark import BENCH_MESHES, benchmark, load_protocol, protocol_config
+    from nbvtrain.benchmark_report import write_benchmark
+    from nbvtrain.evaluate import settings_dict
+    from nbvtrain.planners import PLANNERS, TravelPlanner, build_planners, default_planners
+
+    protocol = load_protocol(args.protocol)
+    weights = _numbers(args.travel_weight, "--travel-weight") if args.travel_weight is not None else []
+    if not all(math.isfinite(weight) and weight >= 0 for weight in weights):
+        raise ConfigError(f"--travel-weight {args.travel_weight}: each weight must be a finite number >= 0")
+    config = protocol_config(protocol, args.config, args.overrides)
+    given = args.planners if args.planners is not None else ",".join(default_planners())
+    names = [name.strip() for name in given.split(",") if name.strip()]
+    unknown = [name for name in names if name not in PLANNERS and ":" not in name]
+    if unknown or not names:
+        raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy module:function")
+    if args.reference not in names:
+        raise ConfigError(f"--reference {args.reference}: not among --planners ({','.join(names)}): add it, or compare "
+                          "against one of them")
+    meshes = args.meshes if args.meshes is not None else BENCH_MESHES
+    if not meshes.exists():
+        raise ConfigError(f"--meshes {meshes}: no such folder (the default is the bench corpus, ../shared/meshes/bench "
+                          "beside the checkout): pass --meshes DIR")
+    try:
+        sources, failures = mesh_sources(meshes)
+    except MeshError as error:
+        raise ConfigError(str(error)) from None
+    if not sources:
+        raise ConfigError(f"--meshes {meshes}: no mesh files in it")
+    sources = sources[:args.limit] if args.limit else sources
+    checkpoints = {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"),
+                   "regression": args.checkpoint, "classification": args.class_checkpoint}
+    planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints,
+                                       foreign_views=protocol.snap)
+    for message in skipped:
+        print(f"nbvtrain benchmark: {message}", file=sys.stderr)
+    radius = config.mesh.object_size * math.sqrt(3) / 2  # what a robot knows of the object's bounding sphere
+    planners += [TravelPlanner(planner, weight, radius) for weight in weights for planner in list(planners)
+                 if planner.name in ("oracle", "scores", "infogain", "farthest")]
+    if args.reference not in {planner.name for planner in planners}:
+        raise ConfigError(f"--reference {args.reference}: that planner was skipped (see above): pass its checkpoint or "
+                          "another --reference")
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    workers = args.workers or os.cpu_count() or 1
+    report = benchmark(sources, planners, config, protocol, args.starts, args.seed, workers, progress, args.rerun)
+    report.failures = failures + report.failures
+    settings = {"protocol": to_dict(protocol)} | settings_dict(
+        config, meshes=meshes, planners=[p.name for p in planners], starts=args.starts, seed=args.seed,
+        reference=args.reference, limit=args.limit, travel_weights=weights,
+        checkpoints={name: [str(p) for p in paths] if isinstance(paths, list) else (str(paths) if paths else None)
+                     for name, paths in checkpoints.items()})
+    write_benchmark(report, args.out, args.reference, args.seed, settings)
+    runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
+    print(f"nbvtrain benchmark: protocol {protocol.name}, {plural(runs, 'reconstruction')} of "
+          f"{plural(len({r['mesh'] for r in report.rows}), 'object')} in {report.seconds:.1f} s; wrote "
+          f"{args.out / 'benchmark.md'}, per_object.csv, coverage.csv and {args.out / 'plots'}/")
+    for name, reason in report.failures:
+        print(f"nbvtrain benchmark: failed: {name}: {reason}", file=sys.stderr)
+    return 1 if report.failures else 0
+
+
 def _checkpoint_list(text: str | None, flag: str) -> list[Path] | None:
     """``A.pt,B.pt`` -> [A.pt, B.pt]; None stays None (the released model)."""
     if text is None:
@@ -362,6 +428,7 @@ def build_parser() -> Parser:
     _add_plan(sub, released)
     _add_baselines(sub, released)
     _add_evaluate(sub, released)
+    _add_benchmark(sub, released)
     _add_release(sub, released)
     return parser
 
@@ -417,6 +484,7 @@ def _add_fit(sub, released: dict[str, str]) -> None:
                      help="show a progress bar (default: on a terminal)")
     fit.set_defaults(func=cmd_fit)
 
+
 def _add_predict(sub, released: dict[str, str]) -> None:
     """``predict``: its options."""
     predict = sub.add_parser("predict", help="the NBV pose a checkpoint predicts for a grid or cloud, as JSON")
@@ -440,6 +508,7 @@ def _add_predict(sub, released: dict[str, str]) -> None:
                          "networks and nbvscore-3; refused for the others)")
     predict.add_argument("--device", default="cpu", help="torch device (default cpu)")
     predict.set_defaults(func=cmd_predict)
+
 
 def _add_plan(sub, released: dict[str, str]) -> None:
     """``plan``: its options."""
@@ -479,6 +548,7 @@ def _add_plan(sub, released: dict[str, str]) -> None:
     plan.add_argument("--device", default="cpu", help="torch device (default cpu)")
     plan.set_defaults(func=cmd_plan)
 
+
 def _add_baselines(sub, released: dict[str, str]) -> None:
     """``baselines``: its options."""
     baselines = sub.add_parser("baselines", help="mean-direction, nearest-neighbour and farthest-view scores on a split")
@@ -494,6 +564,7 @@ def _add_baselines(sub, released: dict[str, str]) -> None:
     baselines.add_argument("--mixed-scenes", action="store_true", help="score shards made in different scenes "
                            "together (refused by default, as by fit)")
     baselines.set_defaults(func=cmd_baselines)
+
 
 def _add_evaluate(sub, released: dict[str, str]) -> None:
     """``evaluate``: its options."""
@@ -550,6 +621,43 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                           help="show a progress bar (default: on a terminal)")
     evaluate.set_defaults(func=cmd_evaluate)
+
+
+def _add_benchmark(sub, released: dict[str, str]) -> None:
+    """``benchmark``: its options."""
+    bench = sub.add_parser("benchmark", help="the field's protocols (paper, pc-nbv, scvp, objview) on a corpus of "
+                           "objects: AUC, coverage, path cost, Chamfer, intervals that decide")
+    bench.add_argument("--protocol", default="paper", help="a protocol of configs/protocols (paper, pc-nbv, scvp, "
+                       "objview) or a protocol file .yaml (default paper; docs/benchmark.md)")
+    bench.add_argument("--meshes", type=Path, help="folder of meshes, one mesh file or a .txt list (default: the bench "
+                       "corpus, ../shared/meshes/bench)")
+    bench.add_argument("--planners", help="comma-separated registered planners and module:function policies "
+                       "(default all but hybrid, as evaluate)")
+    bench.add_argument("--reference", default="farthest", help="the planner every other is compared with, paired per "
+                       "object (default farthest)")
+    bench.add_argument("--starts", type=positive_int, default=3, help="start views per object (default 3)")
+    bench.add_argument("--seed", type=non_negative_int, default=0, help="seed of start views, reference points, the "
+                       "random planner and the bootstrap (default 0)")
+    bench.add_argument("--workers", type=non_negative_int, default=1, help="meshes at once, in processes of one thread "
+                       "each; the same files but timings (default 1; 0 = one per core)")
+    bench.add_argument("--limit", type=positive_int, help="only the first N meshes (a quick try)")
+    bench.add_argument("--travel-weight", metavar="L[,L...]", help="also run oracle, scores, infogain and farthest "
+                       "weighing the path to each view: score (scaled to [0, 1]) minus L times the path (scaled by the "
+                       "longest); one planner NAME-travelL per weight (docs/benchmark.md)")
+    bench.add_argument("--score-checkpoint", help="candidate-score checkpoint(s), comma-separated (default: the released "
+                       f"one, {released['scores']})")
+    bench.add_argument("--checkpoint", type=Path, help="regression checkpoint (default: the released one, "
+                       f"{released['regression']})")
+    bench.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (none is released)")
+    bench.add_argument("--out", type=Path, default=Path("runs/benchmark"), help="output folder (runs/benchmark)")
+    bench.add_argument("--config", type=Path, help="YAML of simulation settings under the protocol's")
+    bench.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                       help="override one setting after the protocol's, e.g. --set views.reach=hemi")
+    bench.add_argument("--rerun", type=Path, metavar="DIR", help="also write a Rerun recording per mesh (docs/rerun.md)")
+    bench.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                       help="show a progress bar (default: on a terminal)")
+    bench.set_defaults(func=cmd_benchmark)
+
 
 def _add_release(sub, released: dict[str, str]) -> None:
     """``release``: its options."""

@@ -62,16 +62,16 @@ import numpy as np
 import yaml
 
 from nbvdata.config import ConfigError, SimConfig, to_dict
-from nbvdata.episode import Reconstruction, mesh_stream, run_seed, scene_rng, start_view
+from nbvdata.episode import Reconstruction, ViewCache, mesh_stream, run_seed, scene_rng, start_view
 from nbvdata.sources import MeshSource
 from nbvdata.mesh import MeshError
 from nbvdata.oracle import overlap, popcount
 from nbvdata.scene import Scene
-from nbvdata.setcover import solve_cover
 from nbvtrain.planners import Observation, Planner
 
 if TYPE_CHECKING:
     from nbvdata.rerun import RunLog
+    from nbvdata.views import Pose
 
 FRONT = np.array([1.0, 0.0, 0.0])
 CSV_COLUMNS = ("mesh", "planner", "start", "start_view", "scan", "coverage", "observable_coverage", "seconds",
@@ -133,21 +133,26 @@ def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
     noise, _ = np.random.SeedSequence(seed).spawn(2)
     state = Reconstruction(scene, None, np.random.default_rng(noise))
     state.scan_pose(scene.views[first_view])
-    cover = solve_cover(scene.oracle, state.covered, scene.config.oracle.cover_node_limit)
+    cover = scene.plan_cover(state.covered)
     return {"cover_size": cover.size, "cover_bound": cover.bound, "cover_greedy": cover.greedy}
 
 
 def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, seed: int,
-                log: RunLog | None = None) -> list[dict]:
+                log: RunLog | None = None, on_scan: Callable[[int, Pose], None] | None = None,
+                cache: ViewCache | None = None) -> list[dict]:
     """One closed-loop reconstruction: (scans) rows of scan, coverage, observable_coverage,
     seconds, the pose position, its overlap and the number of valid candidate views before it
     (None for the start). Only a privileged planner sees the ``Reconstruction``; one that reads
     points gets every point scanned so far (``nbvdata.cloud``, kept as the generator keeps them).
     ``log``: also record every state, with the oracle's scores and the planner's next pose, in a
-    Rerun recording (``nbvdata.rerun``; it changes no row)."""
+    Rerun recording (``nbvdata.rerun``; it changes no row). ``on_scan(scan, pose)``: called after
+    each scan (``nbvtrain.benchmark`` measures the scanned points there; it changes no row).
+    ``cache``: the mesh's ``ViewCache`` (noise-free sensor only; made with points when the
+    planner reads them): a pose that is a candidate view takes its cached grid update and covered
+    points, the same as casting it live (tested), once per mesh instead of once per scan."""
     noise, choices = np.random.SeedSequence(seed).spawn(2)
     planner.start(choices)
-    state = Reconstruction(scene, None, np.random.default_rng(noise), points=planner.reads_points)
+    state = Reconstruction(scene, cache, np.random.default_rng(noise), points=planner.reads_points)
     min_overlap = scene.config.oracle.min_overlap
     pose, seconds, pose_overlap, valid_views = scene.views[first_view], 0.0, None, None
     poses, rows = [], []
@@ -163,10 +168,13 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
             if log is not None:  # the state the planner chose from
                 log.scored_step(scan - 1, state.grid.probabilities(), poses[-1], state.covered, pose)
         before = state.covered.copy()
-        seen = state.scan_pose(pose)
+        view = _candidate_view(scene, pose) if cache is not None else None
+        seen = state.scan(view) if view is not None else state.scan_pose(pose)
         if scan > 1:
             pose_overlap = overlap(seen, before)
         poses.append(pose)
+        if on_scan is not None:
+            on_scan(scan, pose)
         x, y, z = pose.position.tolist()
         rows.append({"scan": scan, "coverage": popcount(state.covered) / scene.oracle.points,
                      "observable_coverage": scene.oracle.observable_coverage(state.covered),
@@ -175,6 +183,19 @@ def reconstruct(scene: Scene, planner: Planner, first_view: int, scans: int, see
     if log is not None:
         log.scored_step(scans, state.grid.probabilities(), poses[-1], state.covered)
     return rows
+
+
+def _candidate_view(scene: Scene, pose: Pose) -> int | None:
+    """The candidate view whose pose ``pose`` is (the same position), or None."""
+    exact = np.flatnonzero((scene.views.positions == pose.position).all(axis=1))
+    return int(exact[0]) if len(exact) else None
+
+
+def mesh_cache(scene: Scene, planners: list[Planner]) -> ViewCache | None:
+    """The ``ViewCache`` a mesh's reconstructions share: None with a noisy sensor (every scan live)."""
+    if scene.config.sensor.noise_std > 0:
+        return None
+    return ViewCache(scene, any(planner.reads_points for planner in planners))
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
@@ -196,7 +217,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
         from nbvdata.files import sweep_temporaries
 
         sweep_temporaries(Path(rerun))
-    with _mesh_runner(workers, bar) as run:
+    with mesh_runner(workers, bar) as run:
         results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors, rerun)
                                       for source in sources])
         for source, (rows, floors, failure, trace) in zip(sources, results):
@@ -224,7 +245,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
     (parallel workers pass 1). ``rerun``: also write ``rerun``/<mesh>.rrd, every reconstruction
     under the entity path <planner>/start_<k>, side by side in the viewer (``nbvdata.rerun``)."""
     if threads:
-        _limit_threads(threads)
+        limit_threads(threads)
     try:
         obj = source.load(config.mesh)
         scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id), threads)
@@ -235,13 +256,15 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
     floor_rows = [{"mesh": source.stem, "start": number, "start_view": first}
                   | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
                   for number, first in enumerate(firsts)] if floors else []
+    cache = mesh_cache(scene, planners)
     rows = []
-    with _recording(rerun, source.stem) as recording:
+    with recording_of(rerun, source.stem) as recording:
         for index, planner in enumerate(planners):
             for number, first in enumerate(firsts):
                 log = recording.run([planner.name, f"start_{number}"], scene) if recording is not None else None
                 try:
-                    run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log)
+                    run = reconstruct(scene, planner, first, scans, run_seed(seed, source.mesh_id, number), log,
+                                      cache=cache)
                 except ConfigError:  # a policy that breaks its contract (e.g. returns no view): a user error
                     raise
                 except Exception as error:  # a planner's bug (a user's policy too): this mesh fails, the rest go on
@@ -255,7 +278,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
     return rows, floor_rows, None, None
 
 
-def _recording(folder: Path | None, mesh: str) -> contextlib.AbstractContextManager:
+def recording_of(folder: Path | None, mesh: str) -> contextlib.AbstractContextManager:
     """The Rerun recording ``folder``/<mesh>.rrd (``nbvdata.rerun.Recording``), or None."""
     if folder is None:
         return contextlib.nullcontext()
@@ -264,7 +287,7 @@ def _recording(folder: Path | None, mesh: str) -> contextlib.AbstractContextMana
     return Recording(Path(folder) / f"{mesh}.rrd", mesh)
 
 
-def _limit_threads(threads: int) -> None:
+def limit_threads(threads: int) -> None:
     import numba
     import torch
 
@@ -273,7 +296,7 @@ def _limit_threads(threads: int) -> None:
 
 
 @contextlib.contextmanager
-def _mesh_runner(workers: int, bar) -> Iterator[Callable]:
+def mesh_runner(workers: int, bar) -> Iterator[Callable]:
     """``run(function, argument tuples)``: the calls' results in order, in this process or in
     ``workers`` loky processes; each call counts its reconstructions on ``bar`` (through a queue
     from a worker process)."""

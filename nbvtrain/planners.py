@@ -37,9 +37,11 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 - ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
 - ``setcover``: SCVP's one-shot plan, privileged like the oracle: at its first decision it
   solves the state's set cover (``nbvdata.setcover``, the fewest views that cover the rest) once,
-  then scans the planned views, the one adding the most new surface first; with the plan done
-  (everything observable covered) it takes the view adding the most, as the oracle without the
-  overlap rule. The overlap rule is no part of the plan, as in SCVP.
+  then scans the planned views in the order of the shortest tour from where the sensor is
+  (``nbvdata.paths.shortest_tour``, round the object's bounding sphere: MA-SCVP's point, a
+  shorter path); with the plan done (everything observable covered) it takes the view adding
+  the most, as the oracle without the overlap rule. The overlap rule is no part of the plan, as
+  in SCVP.
 - ``random``: a seeded uniformly random candidate view.
 - ``farthest``: the unscanned candidate view farthest in angle from every pose scanned so far
   (greedy farthest-point sampling of the view sphere). It reads neither the grid nor the mesh:
@@ -74,9 +76,10 @@ from nbvdata.cloud import reduce_cloud
 from nbvdata.config import ConfigError, GridConfig, SensorConfig, SimConfig
 from nbvdata.episode import Reconstruction
 from nbvdata.grid import ray_information
+from nbvdata.paths import path_length, shortest_tour
 from nbvdata.sensor import camera_rays
-from nbvdata.views import (FIXED_LAYOUTS, Pose, ViewSet, farthest_view, look_at_rotations, scanned_views,
-                           sphere_positions, spread_view)
+from nbvdata.views import (FIXED_LAYOUTS, Pose, ViewSet, farthest_view, look_at_rotations, nearest_scan_cosines,
+                           scanned_views, sphere_positions, spread_view)
 from nbvtrain.models import class_positions
 from nbvtrain.scores import pick, standardise
 
@@ -130,11 +133,16 @@ class LearnedPlanner(Planner):
     candidate views (a score network's picks and the no-stall rule are views of it); ``config``:
     the run's settings, which a checkpoint that records its training scene must match
     (``nbvtrain.trained_scene.check_scene``); ``tta``: quarter-turn test-time averaging (refused where it
-    is not exact). The name says which: ``scores``, ``scores-ens2``, ``regression-tta``, ..."""
+    is not exact). The name says which: ``scores``, ``scores-ens2``, ``regression-tta``, ...
+
+    ``foreign_views``: the run's candidate views are not the ones the network was trained with
+    (a benchmark protocol's layout): only its grid must match the run's, and a score network
+    answers with the best of its own views not scanned (each scanned pose marks its nearest), as a
+    pose that ``SnappedPlanner`` then takes to the run's nearest unscanned view."""
 
     def __init__(self, checkpoint: str | Path | Sequence[str | Path], radius: float, expect: str,
                  views: ViewSet | None = None, no_stall: bool = False, config: SimConfig | None = None,
-                 tta: bool = False, spread: float | None = None):
+                 tta: bool = False, spread: float | None = None, foreign_views: bool = False):
         from nbvtrain.predict import Predictor
         from nbvtrain.trained_scene import check_scene
 
@@ -152,10 +160,11 @@ class LearnedPlanner(Planner):
                 raise ConfigError(f"{path}: a {task} network ({predictor.name}); pass it with "
                                   f"{flags.get(task, '--checkpoint')}")
             if config is not None:
-                check_scene(predictor.scene, config, path)
+                check_scene(predictor.scene, _trained_views(predictor.scene, config) if foreign_views else config, path)
             if views is None and (task == "scores" or no_stall or spread is not None):
                 raise ValueError("a score network, the no-stall and the spread rule need the run's candidate views")
-            if task == "scores" and not np.allclose(views.unit_positions, predictor.view_units, atol=1e-9):
+            if task == "scores" and not foreign_views and not np.allclose(views.unit_positions, predictor.view_units,
+                                                                          atol=1e-9):
                 raise ConfigError(f"{path}: scores {len(predictor.view_units)} candidate views other than this run's "
                                   f"{len(views)}: run with the settings it was trained with (--config/--set views.*)")
             self.predictors.append(predictor)
@@ -163,11 +172,12 @@ class LearnedPlanner(Planner):
         self.reads_points = self.predictor.inputs == "points"
         if any((predictor.inputs == "points") != self.reads_points for predictor in self.predictors):
             raise ConfigError("an ensemble of grid and point networks: pass networks that read the same input")
+        self.foreign_views = foreign_views
         self.views, self.no_stall = views, no_stall and expect != "scores"
         self.spread = spread if expect != "scores" else None
         self.name = (expect + ("-nostall" if self.no_stall else "") + (f"-ens{len(paths)}" if len(paths) > 1 else "")
                      + (f"-spread{self.spread:g}" if self.spread is not None else "") + ("-tta" if tta else ""))
-        self._arguments = (checkpoint, radius, expect, views, no_stall, config, tta, spread)
+        self._arguments = (checkpoint, radius, expect, views, no_stall, config, tta, spread, foreign_views)
 
     @property
     def checkpoints(self) -> list[str]:
@@ -203,6 +213,21 @@ class LearnedPlanner(Planner):
             return observation.probabilities
         return reduce_cloud(observation.points, predictor.points)[0]
 
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """A score network's (views, (V,) standardised scores), scanned views -inf (its own views
+        with ``foreign_views``, placed at the run's radius)."""
+        if self.predictor.model.task != "scores":
+            raise ValueError(f"{self.name}: only a score network scores every candidate view")
+        if self.foreign_views:
+            units = self.predictor.view_units
+            positions = units * self.predictor.radius
+            views = ViewSet(positions, look_at_rotations(positions))
+        else:
+            views, units = self.views, self.views.unit_positions
+        taken = scanned_views(observation.positions, units)
+        return views, np.where(taken, -np.inf, self.view_scores(observation, taken))
+
     def next_view(self, observation: Observation) -> int:
         """A score network's choice as a candidate view index (``next_pose`` is its pose); a point
         network reads the scanned points, reduced as the generator reduces them."""
@@ -211,6 +236,11 @@ class LearnedPlanner(Planner):
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         task = self.predictor.model.task
+        if task == "scores" and self.foreign_views:  # the best of its own views, as a pose to snap
+            units = self.predictor.view_units
+            taken = scanned_views(observation.positions, units)
+            best = int(pick(self.view_scores(observation, taken)[None], taken[None])[0])
+            return Pose.look_at(units[best] * self.predictor.radius)
         if task == "scores":
             return self.views[self.next_view(observation)]
         (prediction,) = self.predictor.predict(observation.probabilities, scans=observation.positions)
@@ -233,6 +263,17 @@ class LearnedPlanner(Planner):
         if not len(free):
             return prediction.pose
         return self.views[int(free[np.argmax(units[free] @ prediction.direction)])]
+
+
+def _trained_views(recorded: dict | None, config: SimConfig) -> SimConfig:
+    """``config`` with the candidate views a checkpoint's scene records (``recorded``), so that
+    ``check_scene`` compares the grid only."""
+    if not recorded or recorded.get("mixed"):
+        return config
+    views = {"count": recorded.get("views_count"), "radius": recorded.get("views_radius"),
+             "layout": recorded.get("views_layout")}
+    return dataclasses.replace(config, views=dataclasses.replace(
+        config.views, reach="whole", **{key: value for key, value in views.items() if value is not None}))
 
 
 class HybridPlanner(LearnedPlanner):
@@ -292,35 +333,39 @@ class OraclePlanner(Planner):
         best = scores.best(self.min_overlap)
         return self.views[best if best is not None else int(np.argmax(scores.gains))]
 
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """(views, (V,) gains): the valid views' gains, -inf elsewhere (every view's when none is valid)."""
+        scores = truth.scene.oracle.score(truth.covered)
+        valid = (scores.overlaps >= self.min_overlap) & (scores.new > 0)
+        return self.views, np.where(valid if valid.any() else scores.new > 0, scores.gains, -np.inf)
+
 
 class SetCoverPlanner(Planner):
-    """SCVP's plan: the set cover of the first state it sees, scanned most new surface first
-    (see the module docstring); ``node_limit``: branch-and-bound nodes for that one solve
-    (``oracle.cover_node_limit``)."""
+    """SCVP's plan: the set cover of the first state it sees, scanned in the shortest tour's order
+    (see the module docstring); the plan is the scene's ``plan_cover`` of that state (within
+    ``oracle.cover_node_limit`` branch-and-bound nodes, solved once per state and shared with
+    the evaluation's floor)."""
 
     name = "setcover"
     privileged = True
 
-    def __init__(self, views: ViewSet, node_limit: int):
-        self.views, self.node_limit = views, node_limit
+    def __init__(self, views: ViewSet):
+        self.views = views
         self.plan: list[int] | None = None
 
     def start(self, seed: int | np.random.SeedSequence) -> None:
         self.plan = None
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
-        from nbvdata.setcover import solve_cover
-
         oracle = truth.scene.oracle
         if self.plan is None:
-            self.plan = list(solve_cover(oracle, truth.covered, self.node_limit).views)
-        new = oracle.score(truth.covered).new
+            plan = list(truth.scene.plan_cover(truth.covered).views)
+            order = shortest_tour(observation.positions[-1], self.views.positions[plan], truth.scene.bounding_radius)
+            self.plan = [plan[i] for i in order]
         if self.plan:
-            view = max(self.plan, key=lambda v: (new[v], -v))  # most new surface, ties to the lowest index
-            self.plan.remove(view)
-        else:
-            view = int(np.argmax(new))
-        return self.views[view]
+            return self.views[self.plan.pop(0)]
+        return self.views[int(np.argmax(oracle.score(truth.covered).new))]
 
 
 class RandomPlanner(Planner):
@@ -350,6 +395,75 @@ class FarthestPlanner(Planner):
 
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         return self.views[farthest_view(self.views.unit_positions, observation.positions)]
+
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """(views, (V,) minus the cosine to the nearest scan): farther is higher; scanned views -inf."""
+        units = self.views.unit_positions
+        taken = scanned_views(observation.positions, units)
+        return self.views, np.where(taken, -np.inf, -nearest_scan_cosines(units, observation.positions))
+
+
+class SnappedPlanner(Planner):
+    """``planner`` whose answers are always one of the run's candidate views ``views``: a pose that
+    is none (a regression network's direction, information gain's own views, a network trained
+    on other views) becomes the unscanned candidate view nearest to it in direction (every view
+    scanned: the nearest). What a protocol of fixed, reachable views asks (ObjView-Bench refuses
+    any other pose). The name and everything else are the planner's."""
+
+    def __init__(self, planner: Planner, views: ViewSet):
+        self.planner, self.views = planner, views
+        self.name, self.privileged, self.reads_points = planner.name, planner.privileged, planner.reads_points
+
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        self.planner.start(seed)
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        pose = self.planner.next_pose(observation, truth)
+        exact = np.flatnonzero((self.views.positions == pose.position).all(axis=1))
+        if len(exact):
+            return self.views[int(exact[0])]
+        units = self.views.unit_positions
+        direction = pose.position / np.linalg.norm(pose.position)
+        free = np.flatnonzero(~scanned_views(observation.positions, units))
+        candidates = free if len(free) else np.arange(len(units))
+        return self.views[int(candidates[np.argmax(units[candidates] @ direction)])]
+
+
+class TravelPlanner(Planner):
+    """A greedy planner that also weighs the path to the view: of the views its ``candidate_scores``
+    allows, the one with the highest s - ``weight`` p, s its score scaled to [0, 1] over the
+    allowed views (lowest 0, highest 1) and p the path to the view from the last scan round the
+    object's bounding sphere (``nbvdata.paths.path_length``; radius ``radius``: what the robot
+    knows, ``mesh.object_size`` sqrt(3) / 2) scaled by the longest such path among them. Weight 0 is
+    the planner's own choice; a large weight the nearest allowed view. Named ``NAME-travelW``."""
+
+    def __init__(self, planner: Planner, weight: float, radius: float):
+        if not hasattr(planner, "candidate_scores"):
+            raise ConfigError(f"--travel-weight: {planner.name} does not score every view (oracle, scores, infogain and "
+                              "farthest do)")
+        self.planner, self.weight, self.radius = planner, weight, radius
+        self.name = f"{planner.name}-travel{weight:g}"
+        self.privileged, self.reads_points = planner.privileged, planner.reads_points
+
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        self.planner.start(seed)
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        if self.weight == 0:  # exactly the planner's choice, its ties included
+            return self.planner.next_pose(observation, truth)
+        views, scores = self.planner.candidate_scores(observation, truth)
+        allowed = np.isfinite(scores)
+        if not allowed.any():
+            return self.planner.next_pose(observation, truth)
+        low, high = scores[allowed].min(), scores[allowed].max()
+        scaled = (scores - low) / (high - low) if high > low else np.ones_like(scores)
+        here = observation.positions[-1]
+        paths = np.array([path_length(here, position, self.radius) if ok else 0.0
+                          for position, ok in zip(views.positions, allowed)])
+        longest = paths[allowed].max()
+        value = np.where(allowed, scaled - self.weight * (paths / longest if longest > 0 else 0.0), -np.inf)
+        return views[int(np.argmax(value))]
 
 
 class PolicyPlanner(Planner):
@@ -500,6 +614,14 @@ class InfoGainPlanner(Planner):
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         return self.views[self.best_view(observation.probabilities)]
 
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """(its own views, (V,) information): the views that pass the overlap estimate (every view
+        when none does)."""
+        scores = self.scores(observation.probabilities)
+        valid = scores.overlaps >= self.min_overlap
+        return self.views, np.where(valid if valid.any() else np.ones_like(valid), scores.information, -np.inf)
+
 
 @dataclass(frozen=True)
 class PlannerKind:
@@ -555,6 +677,7 @@ class PlannerContext:
     hybrid_weights: Sequence[float] = (1.0,)
     hybrid_stride: int = 4
     spread: float | None = None
+    foreign_views: bool = False
 
     def checkpoint(self, task: str) -> Path | Sequence[Path]:
         """The checkpoint(s) of ``task``: given, else the released one; ``Skipped`` when neither."""
@@ -571,7 +694,15 @@ class PlannerContext:
     def learned(self, task: str) -> list[Planner]:
         config = self.config
         return [LearnedPlanner(self.checkpoint(task), config.views.radius, task, self.views, self.no_stall, config,
-                               self.tta, self.spread)]
+                               self.tta, self.spread, self.foreign_views)]
+
+    def infogain_layout(self) -> str:
+        """The layout of information gain's 20 views: the candidates', but a Fibonacci half or
+        whole sphere for a fixed layout of more than 40 views (Tammes-128), as reachable."""
+        layout = self.config.views.layout
+        if layout not in FIXED_LAYOUTS or len(FIXED_LAYOUTS[layout]()) <= 40:
+            return layout
+        return "hemisphere" if (self.views.positions[:, 2] >= 0).all() else "sphere"
 
 
 register_planner("scores", ("grid", "poses"), "the candidate view with the highest score of a candidate-score network "
@@ -593,13 +724,13 @@ register_planner("infogain", ("grid",), "Kriegel et al. 2012 over 20 views laid 
                  "(`nbvdata.grid.ray_information`), among those whose estimated overlap passes the rule")(
     lambda context: [InfoGainPlanner(context.config.scene_grid, context.config.sensor, context.config.views.radius,
                                      context.config.mesh.object_size, context.config.oracle.min_overlap,
-                                     layout=context.config.views.layout)])
+                                     layout=context.infogain_layout())])
 register_planner("oracle", ("scene",), "the exhaustive ground truth over all candidate views (when no view is valid, "
                  "the most informative one)")(
     lambda context: [OraclePlanner(context.views, context.config.oracle.min_overlap)])
 register_planner("setcover", ("scene",), "SCVP's one-shot plan: the set cover of its first state (docs/setcover.md), "
                  "scanned most new surface first; then the view adding the most")(
-    lambda context: [SetCoverPlanner(context.views, context.config.oracle.cover_node_limit)])
+    lambda context: [SetCoverPlanner(context.views)])
 register_planner("random", ("seed",), "a uniformly random candidate view: a lower bound")(
     lambda context: [RandomPlanner(context.views)])
 register_planner("farthest", ("poses",), "the unscanned candidate view farthest in angle from every scanned pose (greedy "
@@ -627,7 +758,7 @@ def planner_table() -> list[str]:
 def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                    checkpoints: dict[str, Path | Sequence[Path] | None], no_stall: bool = False, tta: bool = False,
                    hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4,
-                   spread: float | None = None) -> tuple[list[Planner], list[str]]:
+                   spread: float | None = None, foreign_views: bool = False) -> tuple[list[Planner], list[str]]:
     """The named planners (registered ones, and ``module:function`` policies), and a message for
     each one skipped for want of a checkpoint. ConfigError for a name not registered, listing those
     that are.
@@ -636,8 +767,10 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
     several, an ensemble), None for the released model of that task (``nbvtrain.release``) where
     there is one; ``hybrid`` takes the scores' and gives one planner per weight of
     ``hybrid_weights``. ``tta``: quarter-turn averaging for every learned planner; ``spread``: the
-    spread rule's weight for regression and classification (``LearnedPlanner``)."""
-    context = PlannerContext(config, views, checkpoints, no_stall, tta, tuple(hybrid_weights), hybrid_stride, spread)
+    spread rule's weight for regression and classification (``LearnedPlanner``); ``foreign_views``:
+    the networks were trained on other candidate views (``LearnedPlanner``)."""
+    context = PlannerContext(config, views, checkpoints, no_stall, tta, tuple(hybrid_weights), hybrid_stride, spread,
+                             foreign_views)
     planners, skipped = [], []
     for name in names:
         if ":" in name:

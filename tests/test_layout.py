@@ -34,7 +34,7 @@ def _imports(path: Path) -> set[str]:
 # scene -> episode); the dataset jobs and tools; learning on shards; planning and closed loop.
 STAGES = (
     ("base", "nbvdata", ("text", "errors", "config", "files", "logodds", "commandline", "userarrays", "layout_scvp",
-                         "views", "cloud")),
+                         "layout_tammes", "views", "paths", "cloud")),
     ("schema", "nbvdata", ("shards", "summary", "manifest")),
     ("simulation", "nbvdata", ("_open3d", "mesh", "shapes", "sensor", "grid", "coverage", "oracle", "setcover",
                                "scene", "episode", "policy", "sources")),
@@ -42,7 +42,8 @@ STAGES = (
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
                               "dataset", "checkpoint", "train", "baselines", "predict", "release")),
-    ("planning", "nbvtrain", ("sensordata", "planners", "plan", "evaluate", "policy", "cli", "__main__")),
+    ("planning", "nbvtrain", ("sensordata", "planners", "plan", "evaluate", "statistics", "benchmark",
+                              "benchmark_report", "policy", "cli", "__main__")),
 )
 STAGE = {f"{package}.{module}": number for number, (_, package, modules) in enumerate(STAGES) for module in modules}
 SCHEMA_SIDE = {name for name, stage in STAGE.items() if stage <= 1}  # what learning may read of nbvdata

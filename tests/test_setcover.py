@@ -447,20 +447,30 @@ def test_the_size_may_drop_by_one_after_a_view_outside_the_cover():
     assert label.views == (3,) and label.proved
 
 
-def test_setcover_planner_scans_the_plan_most_new_surface_first():
-    """Plan {0, 1, 2} of a 3-view instance where view 2 sees most: scanned 2, then the others."""
-    visible = np.zeros((3, 10), dtype=bool)
-    visible[0, :2] = visible[1, 2:4] = visible[2, 4:] = True
+def test_setcover_planner_scans_the_plan_in_the_shortest_tour_order():
+    """Plan {0, 1, 2} (views at 90, 180 and 30 degrees round the equator) from a sensor at 0 degrees:
+    the shortest tour is 30, 90, 180 degrees - views 2, 0, 1 - though view 0 sees the most."""
+    from nbvdata.views import ViewSet, look_at_rotations
+    from nbvtrain.planners import Observation
+
+    angles = np.radians([90.0, 180.0, 30.0, 0.0])
+    positions = 0.4 * np.stack([np.cos(angles), np.sin(angles), np.zeros(4)], axis=1)
+    views = ViewSet(positions, look_at_rotations(positions))
+    visible = np.zeros((4, 10), dtype=bool)
+    visible[0, :6] = visible[1, 6:8] = visible[2, 8:] = True
     oracle = ViewOracle(visible)
-    planner = SetCoverPlanner(views=[0, 1, 2], node_limit=200)
+    planner = SetCoverPlanner(views=views)
     planner.start(0)
-    truth = SimpleNamespace(scene=SimpleNamespace(oracle=oracle), covered=np.zeros_like(oracle.observable))
-    order = []
+    scene = SimpleNamespace(oracle=oracle, bounding_radius=0.1, plan_cover=lambda covered: solve_cover(oracle, covered, 200))
+    truth = SimpleNamespace(scene=scene, covered=np.zeros_like(oracle.observable))
+    poses, order = [views[3]], []
     for _ in range(3):
-        view = planner.next_pose(None, truth)
+        pose = planner.next_pose(Observation(None, tuple(poses)), truth)
+        view = int(np.flatnonzero((positions == pose.position).all(axis=1))[0])
         order.append(view)
+        poses.append(pose)
         truth.covered = truth.covered | oracle.visible[view]
-    assert order == [2, 0, 1]  # 6 new points, then 2 and 2 (ties to the lowest index)
+    assert order == [2, 0, 1]
 
 
 @pytest.mark.parametrize("seed", [2, 249, 305])
