@@ -130,7 +130,7 @@ def summary_markdown(report: BenchmarkReport, rows: list[dict], reference: str, 
         _, values = _values(rows, budget, planners, "auc")
         for position, (planner, mean, verdict) in enumerate(ranking({p: 100 * v for p, v in values.items()}, seed), 1):
             lines.append(f"{position}. `{planner}` {mean:.1f} %" + (f" - {verdict}" if verdict else ""))
-        lines += ["", *_difficulty_table(rows, budget, planners), ""]
+        lines += ["", *_difficulty_table(rows, budget, planners, reference, seed), ""]
     lines += ["", "## Time per decision (this machine; not part of the comparable results)", "",
               "| planner | mean ms | decisions |", "|---|---|---|"]
     seconds = defaultdict(list)
@@ -189,7 +189,7 @@ def _differences_table(rows, budget, planners, reference, seed) -> list[str]:
     return lines
 
 
-def _difficulty_table(rows, budget, planners) -> list[str]:
+def _difficulty_table(rows, budget, planners, reference, seed) -> list[str]:
     groups = {label: sorted({row["mesh"] for row in rows if row["difficulty"] == label}) for label in DIFFICULTY}
     if not any(groups.values()):
         return ["(No difficulty split: the oracle was not run.)"]
@@ -203,6 +203,19 @@ def _difficulty_table(rows, budget, planners) -> list[str]:
                       and row["difficulty"] == label]
             cells.append(f"{100 * np.mean(values):.1f}" if values else "-")
         lines.append(f"| {planner} | " + " | ".join(cells) + " |")
+    if reference not in planners:
+        return lines
+    lines += ["", f"AUC difference against `{reference}` by difficulty (points; [95 %] over that third's objects; "
+                  "W/T/L):", "", "| planner | " + " | ".join(DIFFICULTY) + " |", "|---" * 4 + "|"]
+    cells = defaultdict(list)
+    for label in DIFFICULTY:
+        third = [row for row in rows if row["difficulty"] == label]
+        _, values = _values(third, budget, planners, "auc")
+        for comparison in compare({p: 100 * v for p, v in values.items()}, reference, seed):
+            cells[comparison.planner].append(
+                f"{comparison.mean:+.1f} [{comparison.low:+.1f}, {comparison.high:+.1f}] "
+                f"{comparison.wins}/{comparison.ties}/{comparison.losses}" if comparison.objects else "-")
+    lines += [f"| {planner} | " + " | ".join(cells[planner]) + " |" for planner in planners if planner != reference]
     return lines
 
 

@@ -729,7 +729,7 @@ register_planner("oracle", ("scene",), "the exhaustive ground truth over all can
                  "the most informative one)")(
     lambda context: [OraclePlanner(context.views, context.config.oracle.min_overlap)])
 register_planner("setcover", ("scene",), "SCVP's one-shot plan: the set cover of its first state (docs/setcover.md), "
-                 "scanned most new surface first; then the view adding the most")(
+                 "scanned in the shortest tour's order round the object; then the view adding the most")(
     lambda context: [SetCoverPlanner(context.views)])
 register_planner("random", ("seed",), "a uniformly random candidate view: a lower bound")(
     lambda context: [RandomPlanner(context.views)])

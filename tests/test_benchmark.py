@@ -139,6 +139,7 @@ def test_one_and_two_workers_write_the_same_bytes(small_protocol, corpus, tmp_pa
     assert all(float(row["auc"]) > 0 and float(row["path_m"]) > 0 and float(row["chamfer"]) > 0 for row in oracle)
     md = (tmp_path / "one" / "benchmark.md").read_text()
     assert "Paired differences against `farthest`" in md and "AUC (%) by difficulty" in md
+    assert "AUC difference against `farthest` by difficulty" in md
     assert {p.name for p in (tmp_path / "one" / "plots").iterdir()} == {"small-k-2.png", "small-k-4.png"}
 
 
