@@ -39,6 +39,13 @@ Seeding follows Gymnasium: ``reset(seed=s)`` reseeds ``np_random``, from which a
 in this order, the mesh unless ``options`` gives it (again while the drawn mesh is unusable:
 such a mesh is skipped with a warning), the start view unless ``options`` gives it, and the seed
 of the range noise. The same seed and options give the same episode.
+
+Action masks: ``action_masks()`` (the method sb3-contrib's ``MaskablePPO`` calls) and
+``info["action_mask"]`` give (V,) bool, True for every candidate view an agent may take: the
+views not scanned yet, so a masked agent never repeats a view; with ``mask_invalid=True`` only
+those of them that also keep the overlap rule (overlap >= ``oracle.min_overlap``), or, where no
+unscanned view keeps it, every unscanned view (a mask allows something while the episode runs).
+A pose action is not masked; its ``action_masks()`` describe the candidate views all the same.
 """
 
 from __future__ import annotations
@@ -85,6 +92,7 @@ class ReconstructEnv(gymnasium.Env):
     threads : ray casting and numba threads (numba's for the whole process), 1 by default: an
         environment runs beside others or a learner, and two threads on a busy 2-core machine
         were 10x slower than one (docs/env.md); 0 = every core
+    mask_invalid : the action mask also leaves out the views that break the overlap rule
     """
 
     metadata = {"render_modes": []}
@@ -92,13 +100,14 @@ class ReconstructEnv(gymnasium.Env):
     def __init__(self, meshes: str | Path | Sequence[str | Path] | None = None,
                  config: SimConfig | str | Path | None = None, overrides: Sequence[str] = (),
                  action: str = "view", info_scores: bool = False, overlap_penalty: float = 0.0,
-                 scene_cache: int | None = 32, threads: int = 1):
+                 scene_cache: int | None = 32, threads: int = 1, mask_invalid: bool = False):
         self.config = _settings(config, overrides)
         if action not in ACTIONS:
             raise ValueError(f"action={action!r}: must be 'view' (a candidate view index) or 'pose' "
                              "(a direction on the view sphere)")
-        if not isinstance(info_scores, bool):
-            raise TypeError(f"info_scores={info_scores!r}: must be True or False")
+        for name, value in (("info_scores", info_scores), ("mask_invalid", mask_invalid)):
+            if not isinstance(value, bool):
+                raise TypeError(f"{name}={value!r}: must be True or False")
         if isinstance(overlap_penalty, bool) or not isinstance(overlap_penalty, (int, float)) \
                 or not math.isfinite(overlap_penalty) or overlap_penalty < 0:
             raise ValueError(f"overlap_penalty={overlap_penalty!r}: must be a finite number >= 0 (0 = no penalty)")
@@ -108,6 +117,7 @@ class ReconstructEnv(gymnasium.Env):
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 0:
             raise ValueError(f"threads={threads!r}: must be an integer >= 0 (0 = every core)")
         self.action, self.info_scores, self.overlap_penalty = action, info_scores, float(overlap_penalty)
+        self.mask_invalid = mask_invalid
         self.threads = threads
         self.sources = _sources(meshes, self.config)
         self.views: ViewSet = view_sphere(self.config.views)
@@ -121,6 +131,7 @@ class ReconstructEnv(gymnasium.Env):
         self.source: MeshSource | None = None
         self.state: Reconstruction | None = None
         self.taken = np.zeros(count, dtype=np.int8)
+        self._mask = np.zeros(count, dtype=bool)
         self._observed = 0  # observable reference points covered
         self._done = True
 
@@ -154,8 +165,9 @@ class ReconstructEnv(gymnasium.Env):
         self.taken[view] = 1
         self._observed = popcount(self.state.covered & scene.oracle.observable)
         self._done = False
-        scores = scene.oracle.score(self.state.covered) if self.info_scores else None
-        return self._observation(), self._info(view, float("nan"), scores)
+        scores = scene.oracle.score(self.state.covered) if self.info_scores or self.mask_invalid else None
+        self._mask = self._allowed(scores)
+        return self._observation(), self._info(view, float("nan"), scores if self.info_scores else None)
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if self._done:
@@ -178,8 +190,13 @@ class ReconstructEnv(gymnasium.Env):
         terminated = scores.best(config.oracle.min_overlap, config.episode.min_gain) is None
         truncated = not terminated and state.scans >= config.episode.max_scans
         self._done = terminated or truncated
+        self._mask = self._allowed(scores)
         info = self._info(view, move_overlap, scores if self.info_scores else None)
         return self._observation(), float(reward), terminated, truncated, info
+
+    def action_masks(self) -> np.ndarray:
+        """(V,) bool: the candidate views an agent may take now (see the module docstring); a copy."""
+        return self._mask.copy()
 
     def close(self) -> None:
         self._scenes = SceneCache(self._scenes.size)
@@ -193,12 +210,21 @@ class ReconstructEnv(gymnasium.Env):
         info = {"mesh": self.source.name, "scans": state.scans, "view": int(view),
                 "coverage": popcount(state.covered) / oracle.points,
                 "observable_coverage": self._observed / max(oracle.observable_count, 1),
-                "overlap": float(move_overlap)}
+                "overlap": float(move_overlap), "action_mask": self._mask.copy()}
         if scores is not None:
             nbv = scores.best(self.config.oracle.min_overlap, self.config.episode.min_gain)
             info |= {"gains": scores.gains.astype(np.float32), "overlaps": scores.overlaps.astype(np.float32),
                      "nbv": -1 if nbv is None else nbv}
         return info
+
+    def _allowed(self, scores) -> np.ndarray:
+        """(V,) bool action mask of the current state: unscanned views, and with ``mask_invalid``
+        those of them that keep the overlap rule where there is any."""
+        unscanned = self.taken == 0
+        if not self.mask_invalid:
+            return unscanned
+        keeping = unscanned & (scores.overlaps >= self.config.oracle.min_overlap)
+        return keeping if keeping.any() else unscanned
 
     def _options(self, options: Any) -> tuple[int | None, int | None]:
         """(mesh index, start view) that ``options`` gives, None where it gives none."""

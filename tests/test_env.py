@@ -1,6 +1,6 @@
 """The Gymnasium environment nbvdata/Reconstruct-v0: Gymnasium's checker, rewards that add up to the
 coverage gained, the oracle's scores equal to the generator's shards, seeding, a vector env equal to
-single envs, the view state, bad input, and RL policies in nbvtrain evaluate."""
+single envs, the view state, action masks, bad input, and RL policies in nbvtrain evaluate."""
 
 from __future__ import annotations
 
@@ -240,6 +240,52 @@ def test_taken_marks_exactly_the_views_scanned(config):
         scanned.add(nearest)
         assert info["view"] == nearest and set(np.flatnonzero(observation["taken"])) == scanned
     assert {12, 40} <= scanned
+
+
+def _random_masked(seed: int):
+    """A uniformly random choice among the views the mask allows."""
+    rng = np.random.default_rng(seed)
+    return lambda observation, info: int(rng.choice(np.flatnonzero(info["action_mask"])))
+
+
+@pytest.mark.parametrize("mask_invalid", [False, True])
+def test_a_random_masked_policy_never_repeats_a_view(config, mask_invalid):
+    """Smoke scene of 60 views, 40 scans a run: a masked random agent takes every view once at
+    most, the mask is exactly the unscanned views (with mask_invalid: those keeping the overlap
+    rule, where any does), and action_masks() is info["action_mask"]."""
+    long = ["episode.max_scans=40", "episode.min_gain=0"]
+    env = ReconstructEnv(TWO, config, long, info_scores=True, mask_invalid=mask_invalid)
+    rule, repeats, episodes, narrowed = config.oracle.min_overlap, 0, 0, 0
+    for seed in range(6):
+        steps, taken = _episode(env, _random_masked(seed), seed=seed)
+        episodes += 1
+        views = [steps[0][4]["view"], *taken]
+        repeats += len(views) - len(set(views))
+        for observation, _, terminated, truncated, info in steps:
+            unscanned = observation["taken"] == 0
+            if terminated or truncated:
+                continue
+            expected = unscanned
+            if mask_invalid and (unscanned & (info["overlaps"] >= rule)).any():
+                expected = unscanned & (info["overlaps"] >= rule)
+                narrowed += int(expected.sum() < unscanned.sum())
+            assert np.array_equal(info["action_mask"], expected)
+            assert info["action_mask"].any()
+        assert np.array_equal(env.action_masks(), steps[-1][4]["action_mask"])
+        assert len(views) > 10  # long episodes: a repeat had every chance
+    assert repeats == 0 and episodes == 6
+    assert narrowed > 0 if mask_invalid else narrowed == 0  # the overlap rule did leave views out
+
+
+def test_the_checker_passes_with_masks_and_they_cross_wrappers(config):
+    env = ReconstructEnv(TWO, config, mask_invalid=True)
+    check_env(env, skip_render_check=True)
+    made = gymnasium.make(ENV_ID, meshes=TWO, config=config, mask_invalid=True)
+    _, info = made.reset(seed=3)
+    assert np.array_equal(made.get_wrapper_attr("action_masks")(), info["action_mask"])
+    assert info["action_mask"].dtype == bool and info["action_mask"].shape == (made.action_space.n,)
+    with pytest.raises(TypeError, match="mask_invalid=1: must be True or False"):
+        ReconstructEnv(TWO, config, mask_invalid=1)
 
 
 def test_the_overlap_penalty_applies_to_moves_that_break_the_rule(config):

@@ -41,7 +41,7 @@ STAGES = (
     ("datasets", "nbvdata", ("claims", "generate", "rerun", "env", "card", "publish", "export", "gridstats", "authors",
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
-                              "dataset", "checkpoint", "train", "baselines", "predict", "release")),
+                              "dataset", "checkpoint", "train", "baselines", "predict", "release", "rl")),
     ("planning", "nbvtrain", ("sensordata", "planners", "plan", "evaluate", "statistics", "benchmark",
                               "benchmark_report", "policy", "cli", "__main__")),
 )

@@ -1,0 +1,285 @@
+"""Reinforcement learning that learns on a CPU: the greedy oracle's choices cloned, DAgger, then
+MaskablePPO (sb3-contrib) on ``nbvdata/Reconstruct-v0``, in a fixed budget of CPU minutes.
+
+    pip install -e ".[rl]"
+    python examples/rl_sb3.py --minutes 60      # train-meshes 1.2.0: train on its train part, choose on val
+
+The policy is the score network (``nbvtrain.rl.ScoreFeatures``, ``nbvscore-fc3``) started from
+the released weights (``--init new``: from new ones) with a linear head over its 500 scores,
+started at the identity: before any step it is the released score network's choice. Stages,
+each from the one before, each's actor saved in ``--out`` as ``STAGE.pt``:
+
+1. ``clone``: ``--episodes`` episodes of the oracle's (``info["nbv"]``) on the training meshes,
+   cloned (cross-entropy of the masked logits with the oracle's view, ``nbvtrain.rl.clone``);
+2. ``dagger``: ``--dagger-rounds`` rounds of the learner's own episodes, labelled by the oracle,
+   added and cloned again;
+3. ``ppo-g{GAMMA}``: for every ``--gammas`` discount, MaskablePPO from the DAgger actor (reward:
+   the observable coverage a scan gained; views scanned are masked, so no repeat).
+
+Every stage is scored on the validation meshes (the real meshes of the val part, ``--val-meshes``
+of them, ``--val-starts`` seeded starts each, the same for every stage): the mean AUC of the
+coverage curve over 10 scans (PC-NBV's, as ``nbvtrain benchmark``) and the final coverage. The
+stage with the best validation AUC is copied to ``actor.pt``, the PPO run with the best to
+``ppo.pt``. ``--minutes`` bounds this process's CPU time (one torch and one ray-casting thread;
+the same budget on an idle and a loaded machine): cloning may take 10 % of it, DAgger up to 35 %
+in all, the PPO runs share what is left equally. ``--scratch-minutes M`` adds, after the choice,
+masked PPO from new weights with the best PPO run's discount for M more CPU minutes
+(``scratch.pt``), the baseline the warm start has to beat. ``curve.csv``: the validation figures
+against CPU minutes (``steps``: PPO's environment steps, or the states cloned).
+
+The actors run as planners (``NBV_RL_DIR``, default runs/rl_sb3)::
+
+    nbvtrain evaluate --meshes ../shared/meshes/test --planners examples/rl_sb3.py:policy,farthest,oracle
+    nbvtrain benchmark --protocol paper --planners examples/rl_sb3.py:clone,examples/rl_sb3.py:policy,farthest
+
+(``policy``: ``actor.pt``, the stage chosen; ``clone``, ``dagger`` (its last round), ``ppo`` (the
+discount best on validation), ``scratch``: those stages.) Not part of the test suite (minutes of
+CPU); tests/test_rl.py runs its pieces on a tiny scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+try:
+    from sb3_contrib import MaskablePPO
+    from stable_baselines3.common.callbacks import BaseCallback
+except ImportError:
+    sys.exit('examples/rl_sb3.py needs sb3-contrib and stable-baselines3: pip install -e ".[rl]"')
+
+from nbvdata.env import ReconstructEnv
+from nbvdata.manifest import load_manifest
+from nbvdata.sources import find_part_meshes
+from nbvtrain.benchmark import auc
+from nbvtrain.release import released_checkpoint
+from nbvtrain import rl
+
+ROOT = Path(__file__).resolve().parents[1]
+SCANS = 10
+
+
+class Budget:
+    """This process's CPU seconds, against a deadline in CPU minutes."""
+
+    def __init__(self):
+        self.began = time.process_time()
+
+    def minutes(self) -> float:
+        return (time.process_time() - self.began) / 60
+
+    def left(self, until: float) -> bool:
+        return self.minutes() < until
+
+
+class StopAt(BaseCallback):
+    """Stops MaskablePPO once ``budget`` reaches ``until`` CPU minutes; every ``every`` CPU
+    minutes ``report()`` is called (a validation point of the curve)."""
+
+    def __init__(self, budget: Budget, until: float, every: float, report):
+        super().__init__()
+        self.budget, self.until, self.every, self.report = budget, until, every, report
+        self.next = budget.minutes() + every
+
+    def _on_step(self) -> bool:
+        if self.budget.minutes() >= self.next:
+            self.report(self.num_timesteps)
+            self.next = self.budget.minutes() + self.every
+        return self.budget.left(self.until)
+
+
+def part_meshes(manifest: Path, meshes: Path, part: str, count: int) -> list[Path]:
+    """The first ``count`` real meshes (not the procedural ones) of ``part`` of the manifest's
+    mesh split, in the split's order."""
+    found = [mesh.path for mesh in find_part_meshes(load_manifest(manifest), part, meshes)
+             if "pybullet_random_urdfs" not in str(mesh.path)]
+    return found[:count] if count else found
+
+
+def actor_logits(policy):
+    """``logits(grids, taken)`` of a MaskablePPO policy built on ``ScoreFeatures`` (pi=[])."""
+    def logits(grids: torch.Tensor, taken: torch.Tensor) -> torch.Tensor:
+        features = policy.features_extractor({"grid": grids, "taken": taken})
+        return policy.action_net(policy.mlp_extractor.forward_actor(features))
+    return logits
+
+
+def new_model(env, views: np.ndarray, checkpoint, gamma: float, lr: float, seed: int) -> MaskablePPO:
+    model = MaskablePPO("MultiInputPolicy", env, learning_rate=lr, n_steps=256, batch_size=64, n_epochs=4,
+                        gamma=gamma, gae_lambda=0.95, clip_range=0.2, ent_coef=0.0, target_kl=0.05, seed=seed,
+                        device="cpu", verbose=0,
+                        policy_kwargs={"features_extractor_class": rl.ScoreFeatures,
+                                       "features_extractor_kwargs": {"views": views, "checkpoint": checkpoint},
+                                       "net_arch": {"pi": [], "vf": [64]}, "ortho_init": False})
+    rl.identity_head(model.policy.action_net)
+    return model
+
+
+def validate(env: ReconstructEnv, logits, meshes: int, starts: int) -> tuple[float, float]:
+    """Mean (AUC, final coverage) over ``meshes`` x ``starts`` seeded episodes of the greedy
+    masked policy, the curve held at its last value after an early end."""
+    aucs, finals = [], []
+    for mesh in range(meshes):
+        for start in range(starts):
+            observation, info = env.reset(seed=1000 * mesh + start, options={"mesh": mesh})
+            curve, done = [info["coverage"]], False
+            while not done and len(curve) < SCANS:
+                with torch.no_grad():
+                    view = int(rl.masked_logits(logits(torch.from_numpy(observation["grid"])[None],
+                                                    torch.from_numpy(observation["taken"]).float()[None]),
+                                             torch.from_numpy(info["action_mask"])[None]).argmax())
+                observation, _, terminated, truncated, info = env.step(view)
+                curve.append(info["coverage"])
+                done = terminated or truncated
+            curve += [curve[-1]] * (SCANS - len(curve))
+            aucs.append(auc(np.array(curve)))
+            finals.append(curve[-1])
+    return float(np.mean(aucs)), float(np.mean(finals))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--manifest", type=Path, default=ROOT / "manifests" / "train-meshes-1.2.0.json")
+    parser.add_argument("--meshes", type=Path, default=ROOT.parent / "shared" / "meshes",
+                        help="the folder the manifest's meshes lie in or below (../shared/meshes)")
+    parser.add_argument("--train-meshes", type=int, default=0, help="real train-part meshes to learn on (0: all)")
+    parser.add_argument("--val-meshes", type=int, default=0, help="real val-part meshes to choose on (0: all)")
+    parser.add_argument("--val-starts", type=int, default=2)
+    parser.add_argument("--minutes", type=float, default=60.0, help="CPU minutes for the whole recipe (60)")
+    parser.add_argument("--episodes", type=int, default=200, help="episodes per cloning or DAgger round (200)")
+    parser.add_argument("--dagger-rounds", type=int, default=2)
+    parser.add_argument("--epochs", type=int, default=3, help="cloning epochs per round (3)")
+    parser.add_argument("--gammas", default="0.1,0.5,0.99", help="MaskablePPO discounts to try (0.1,0.5,0.99)")
+    parser.add_argument("--lr", type=float, default=1e-5, help="MaskablePPO learning rate from the warm start")
+    parser.add_argument("--init", choices=("released", "new"), default="released")
+    parser.add_argument("--scratch-minutes", type=float, default=0.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", type=Path, default=Path("runs/rl_sb3"))
+    args = parser.parse_args()
+    gammas = [float(g) for g in args.gammas.split(",")]
+    torch.set_num_threads(1)
+    torch.manual_seed(args.seed)
+    budget = Budget()
+    train_paths = part_meshes(args.manifest, args.meshes, "train", args.train_meshes)
+    val_paths = part_meshes(args.manifest, args.meshes, "val", args.val_meshes)
+    args.out.mkdir(parents=True, exist_ok=True)
+    train = ReconstructEnv(train_paths, overrides=args.overrides, info_scores=True, scene_cache=None)
+    val = ReconstructEnv(val_paths, overrides=args.overrides, scene_cache=None)
+    views = train.views.unit_positions
+    checkpoint = released_checkpoint("scores") if args.init == "released" else None
+    print(f"{len(train_paths)} training meshes, {len(val_paths)} validation meshes x {args.val_starts} starts; "
+          f"{args.minutes:g} CPU minutes", flush=True)
+    rows = []
+
+    def record(stage: str, steps: int, logits) -> tuple[float, float]:
+        figures = validate(val, logits, len(val_paths), args.val_starts)
+        rows.append({"stage": stage, "cpu_minutes": round(budget.minutes(), 2), "steps": steps,
+                     "val_auc": round(100 * figures[0], 2), "val_coverage": round(100 * figures[1], 2)})
+        print(" | ".join(f"{k} {v}" for k, v in rows[-1].items()), flush=True)
+        with open(args.out / "curve.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        return figures
+
+    model = new_model(train, views, checkpoint, gammas[0], args.lr, args.seed)
+    policy = model.policy
+    parameters = list(policy.features_extractor.parameters()) + list(policy.action_net.parameters())
+    logits = actor_logits(policy)
+    results = {"start": record("start", 0, logits)}
+    rl.save_actor(args.out / "start.pt", policy.features_extractor, policy.action_net, {"stage": "start"})
+
+    def after_round(round_: int, data) -> None:
+        stage = "clone" if round_ == 0 else f"dagger{round_}"
+        results[stage] = record(stage, len(data), logits)
+        rl.save_actor(args.out / f"{stage}.pt", policy.features_extractor, policy.action_net,
+                      {"stage": stage, "states": len(data)})
+        if round_ == args.dagger_rounds and round_:
+            shutil.copyfile(args.out / f"{stage}.pt", args.out / "dagger.pt")
+
+    deadlines = [0.10 * args.minutes] + [0.10 * args.minutes + 0.25 * args.minutes * r / args.dagger_rounds
+                                         for r in range(1, args.dagger_rounds + 1)]
+    rl.dagger(train, logits, parameters, args.dagger_rounds, args.episodes, args.epochs, args.seed, lr=1e-4,
+              after_round=after_round, stop=lambda round_: not budget.left(deadlines[round_]))
+    warm = {k: v.clone() for k, v in policy.state_dict().items()}
+    share = (args.minutes - budget.minutes()) / len(gammas)
+    for gamma in gammas:
+        stage = f"ppo-g{gamma:g}"
+        model = new_model(train, views, None, gamma, args.lr, args.seed)
+        model.policy.load_state_dict(warm)
+        logits = actor_logits(model.policy)
+        until = budget.minutes() + share
+        model.learn(10**9, callback=StopAt(budget, until, max(share / 4, 0.5),
+                                           lambda steps: record(stage, steps, logits)))
+        results[stage] = record(stage, model.num_timesteps, logits)
+        rl.save_actor(args.out / f"{stage}.pt", model.policy.features_extractor, model.policy.action_net,
+                   {"stage": stage, "gamma": gamma, "steps": model.num_timesteps})
+    best = max(results, key=lambda stage: results[stage][0])  # validation AUC
+    shutil.copyfile(args.out / f"{best}.pt", args.out / "actor.pt")
+    best_ppo = max((stage for stage in results if stage.startswith("ppo-g")), key=lambda stage: results[stage][0])
+    shutil.copyfile(args.out / f"{best_ppo}.pt", args.out / "ppo.pt")
+    print(f"chosen on validation: {best} (AUC {100 * results[best][0]:.2f} %); {budget.minutes():.1f} CPU minutes; "
+          f"saved {args.out / 'actor.pt'}", flush=True)
+    if args.scratch_minutes > 0:
+        gamma = float(best_ppo.removeprefix("ppo-g"))
+        model = new_model(train, views, None, gamma, 3e-4, args.seed)
+        logits = actor_logits(model.policy)
+        until = budget.minutes() + args.scratch_minutes
+        model.learn(10**9, callback=StopAt(budget, until, max(args.scratch_minutes / 4, 0.5),
+                                           lambda steps: record("scratch", steps, logits)))
+        record("scratch", model.num_timesteps, logits)
+        rl.save_actor(args.out / "scratch.pt", model.policy.features_extractor, model.policy.action_net,
+                   {"stage": "scratch", "gamma": gamma, "steps": model.num_timesteps})
+
+
+_ACTORS: dict[Path, object] = {}
+
+
+def _act(stage: str, observation: dict) -> int:
+    """The saved actor of ``stage`` on one observation: its most probable view not scanned yet."""
+    path = Path(os.environ.get("NBV_RL_DIR", "runs/rl_sb3")) / f"{stage}.pt"
+    if path not in _ACTORS:
+        _ACTORS[path] = rl.load_actor(path)[0]
+    taken = np.asarray(observation["taken"])
+    with torch.no_grad():
+        logits = _ACTORS[path](torch.from_numpy(np.asarray(observation["grid"], dtype=np.float32))[None],
+                                torch.from_numpy(taken.astype(np.float32))[None])
+    return int(rl.masked_logits(logits, torch.from_numpy(taken == 0)[None]).argmax())
+
+
+def policy(observation: dict) -> int:
+    """The actor chosen on validation (actor.pt), for ``nbvtrain evaluate --planners``."""
+    return _act("actor", observation)
+
+
+def clone(observation: dict) -> int:
+    """The behaviour-cloning stage's actor (clone.pt)."""
+    return _act("clone", observation)
+
+
+def dagger(observation: dict) -> int:
+    """The last DAgger round's actor (dagger.pt)."""
+    return _act("dagger", observation)
+
+
+def ppo(observation: dict) -> int:
+    """The MaskablePPO actor of the discount best on validation (ppo.pt)."""
+    return _act("ppo", observation)
+
+
+def scratch(observation: dict) -> int:
+    """Masked PPO from new weights (scratch.pt)."""
+    return _act("scratch", observation)
+
+
+if __name__ == "__main__":
+    main()
