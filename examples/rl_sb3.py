@@ -126,17 +126,13 @@ def new_model(env, views: np.ndarray, checkpoint, gamma: float, lr: float, seed:
 def validate(env: ReconstructEnv, logits, meshes: int, starts: int) -> tuple[float, float]:
     """Mean (AUC, final coverage) over ``meshes`` x ``starts`` seeded episodes of the greedy
     masked policy, the curve held at its last value after an early end."""
-    aucs, finals = [], []
+    choose, aucs, finals = rl.greedy(logits), [], []
     for mesh in range(meshes):
         for start in range(starts):
             observation, info = env.reset(seed=1000 * mesh + start, options={"mesh": mesh})
             curve, done = [info["coverage"]], False
             while not done and len(curve) < SCANS:
-                with torch.no_grad():
-                    view = int(rl.masked_logits(logits(torch.from_numpy(observation["grid"])[None],
-                                                    torch.from_numpy(observation["taken"]).float()[None]),
-                                             torch.from_numpy(info["action_mask"])[None]).argmax())
-                observation, _, terminated, truncated, info = env.step(view)
+                observation, _, terminated, truncated, info = env.step(choose(observation, info["action_mask"]))
                 curve.append(info["coverage"])
                 done = terminated or truncated
             curve += [curve[-1]] * (SCANS - len(curve))
@@ -248,12 +244,8 @@ def _act(stage: str, observation: dict) -> int:
     """The saved actor of ``stage`` on one observation: its most probable view not scanned yet."""
     path = Path(os.environ.get("NBV_RL_DIR", "runs/rl_sb3")) / f"{stage}.pt"
     if path not in _ACTORS:
-        _ACTORS[path] = rl.load_actor(path)[0]
-    taken = np.asarray(observation["taken"])
-    with torch.no_grad():
-        logits = _ACTORS[path](torch.from_numpy(np.asarray(observation["grid"], dtype=np.float32))[None],
-                                torch.from_numpy(taken.astype(np.float32))[None])
-    return int(rl.masked_logits(logits, torch.from_numpy(taken == 0)[None]).argmax())
+        _ACTORS[path] = rl.greedy(rl.load_actor(path)[0])
+    return _ACTORS[path](observation, np.asarray(observation["taken"]) == 0)
 
 
 def policy(observation: dict) -> int:

@@ -41,8 +41,8 @@ from nbvdata.paths import path_lengths
 from nbvdata.scene import Scene
 from nbvdata.sources import MeshSource
 from nbvdata.views import Pose
-from nbvtrain.evaluate import (evaluation_rng, limit_threads, mesh_cache, mesh_runner, reconstruct, recording_of,
-                               start_floor)
+from nbvtrain.evaluate import (evaluation_rng, front_view, limit_threads, mesh_cache, mesh_runner, reconstruct,
+                               recording_of, start_floor)
 from nbvtrain.planners import Planner, SnappedPlanner
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -295,8 +295,6 @@ def start_views_of(scene: Scene, mesh_id: str, protocol: Protocol, starts: int, 
     first the front view with ``start`` "front")."""
     order = [int(view) for view in evaluation_rng(seed, mesh_id).permutation(len(scene.views))]
     if protocol.start == "front":
-        from nbvtrain.evaluate import front_view
-
         front = front_view(scene)
         order = [front] + [view for view in order if view != front]
     return [order[k % len(order)] for k in range(starts)]

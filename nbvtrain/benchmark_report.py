@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from nbvtrain.benchmark import RUN_METRICS, BenchmarkReport
+from nbvtrain.evaluate import write_failures
 from nbvtrain.statistics import bootstrap_interval, compare, ranking, tertiles
 
 # (column, title, scale, digits, higher is better) of the metrics benchmark.md tabulates
@@ -251,13 +252,7 @@ def write_benchmark(report: BenchmarkReport, out: Path, reference: str, seed: in
     _csv(out / "floors.csv", report.floors, ["mesh", "start", "start_view", "cover_size", "cover_bound", "cover_greedy"])
     (out / "benchmark.md").write_text(summary_markdown(report, rows, reference, seed))
     (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
-    for name in ("failures.tsv", "tracebacks.txt"):
-        (out / name).unlink(missing_ok=True)
-    if report.failures:
-        (out / "failures.tsv").write_text("mesh\treason\n" + "".join(f"{name}\t{' '.join(reason.split())}\n"
-                                                                    for name, reason in report.failures))
-    if report.tracebacks:
-        (out / "tracebacks.txt").write_text("".join(f"== {name}\n{trace}\n" for name, trace in report.tracebacks))
+    write_failures(out, report.failures, report.tracebacks)
     if report.rows:
         plot_benchmark(report, out / "plots", seed)
     return rows

@@ -354,13 +354,21 @@ def write_outputs(report: EvaluationReport, out: Path, planners: list[str], skip
         writer.writerows(report.floors)
     (out / "summary.md").write_text(summary_markdown(report, planners, skipped))
     (out / "config.yaml").write_text(yaml.safe_dump(settings, sort_keys=False))
-    if report.failures:
-        lines = ["mesh\treason\n"] + [f"{name}\t{' '.join(reason.split())}\n" for name, reason in report.failures]
-        (out / "failures.tsv").write_text("".join(lines))
-    if report.tracebacks:
-        (out / "tracebacks.txt").write_text("".join(f"== {name}\n{trace}\n" for name, trace in report.tracebacks))
+    write_failures(out, report.failures, report.tracebacks)
     if report.rows:
         plot_coverage(report.rows, out / "plots", report.floors)
+
+
+def write_failures(out: Path, failures: list[tuple[str, str]], tracebacks: list[tuple[str, str]]) -> None:
+    """failures.tsv (mesh, reason on one line) and tracebacks.txt in ``out``, each only when there
+    is something to say; an earlier run's copies are removed first."""
+    for name in ("failures.tsv", "tracebacks.txt"):
+        (out / name).unlink(missing_ok=True)
+    if failures:
+        (out / "failures.tsv").write_text("mesh\treason\n" + "".join(f"{name}\t{' '.join(reason.split())}\n"
+                                                                    for name, reason in failures))
+    if tracebacks:
+        (out / "tracebacks.txt").write_text("".join(f"== {name}\n{trace}\n" for name, trace in tracebacks))
 
 
 def final_coverage(rows: list[dict], key: str = "coverage") -> dict[tuple[str, str], np.ndarray]:
