@@ -464,3 +464,39 @@ def ray_information(origins, ends, probabilities, resolution, first_key, box_low
                     met = 2
         information[v, r] = total
         first[v, r] = met
+
+
+@numba.njit(cache=True, error_model="numpy")
+def ray_voxels(origins, ends, resolution, first_key, n):
+    """The voxels of an n^3 grid that OctoMap's DDA passes on each ray, in walk order: the same walk
+    as ``integrate`` and ``ray_information`` (``_walk_start``, ``_walk_step``), which depends on the
+    geometry only, never on the grid's values, so it is made once per view set.
+
+    origins (V, 3), ends (V, R, 3) float32: the rays (from each view's origin to its ray's end);
+    resolution, first_key: the grid's (voxel [i, j, k] has key first_key + i, ...). Returns
+    offsets (V * R + 1,) int64 and voxels (T,) int32: ray v * R + r passes the flat C-order voxels
+    voxels[offsets[v * R + r]:offsets[v * R + r + 1]], the voxel holding its end excluded."""
+    views, rays = ends.shape[0], ends.shape[1]
+    scratch = np.zeros((n, n, n), dtype=np.uint8)
+    offsets = np.zeros(views * rays + 1, dtype=np.int64)
+    voxels = np.empty(views * rays * 3 * n, dtype=np.int32)  # a ray passes at most 3n - 2 voxels of the grid
+    count = 0
+    for index in range(views * rays):
+        v, r = index // rays, index % rays
+        (active, k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length,
+         was_inside) = _walk_start(origins[v, 0], origins[v, 1], origins[v, 2], ends[v, r, 0], ends[v, r, 1],
+                                   ends[v, r, 2], resolution, first_key, scratch)
+        i, j, k = k0 - first_key, k1 - first_key, k2 - first_key
+        if active and 0 <= i < n and 0 <= j < n and 0 <= k < n:  # the origin's own voxel
+            voxels[count] = (i * n + j) * n + k
+            count += 1
+        while active:
+            active, k0, k1, k2, t0, t1, t2, was_inside = _walk_step(
+                k0, k1, k2, t0, t1, t2, s0, s1, s2, dt0, dt1, dt2, e0, e1, e2, length, was_inside, first_key,
+                scratch)
+            i, j, k = k0 - first_key, k1 - first_key, k2 - first_key
+            if active and 0 <= i < n and 0 <= j < n and 0 <= k < n:
+                voxels[count] = (i * n + j) * n + k
+                count += 1
+        offsets[index + 1] = count
+    return offsets, voxels[:count]

@@ -1,0 +1,342 @@
+"""Per-view features: what each candidate view would look at in the grid, and where it lies
+against the views already scanned - the input of a ranker that scores any view set, and the
+field's hand-crafted volumetric metrics as columns of it.
+
+``view_features(probabilities, scanned, bundle) -> (V, F) float32``, columns ``FEATURES``:
+
+- **Ray statistics** over a coarse bundle of rays per view (``RayBundle``: ``width`` x
+  ``height`` rays spread over the sensor's field of view, 16 x 12 by default, against the
+  sensor's 176 x 144). Every ray is walked with OctoMap's DDA (the voxels ``integrate`` would
+  pass; the walk is made once per view set, ``nbvdata.grid.ray_voxels``) from the view until the
+  first occupied voxel or the grid's edge. A voxel is occupied when p > 0.5, unknown when never
+  observed (p = 0.5 exactly), free otherwise; H(p) = -p ln p - (1 - p) ln(1 - p); the
+  visibility of a voxel is the product of (1 - p) over the voxels before it on the ray.
+  Per-ray means (sums / rays) unless said:
+
+  ``grid_rays``        share of the rays that enter the grid
+  ``occupied_first``   share whose first non-free voxel is occupied (surface seen before)
+  ``unknown_first``    share whose first non-free voxel is unknown (a view of the unexplored)
+  ``overlap``          occupied_first / (occupied_first + unknown_first): the overlap estimate
+  ``unknown_passed``   unknown voxels passed before the first occupied one
+  ``information``      their entropy (Kriegel et al. 2012: the ``infogain`` baseline's sum)
+  ``occlusion_aware``  sum of visibility x H over every voxel passed, the occupied one included
+                       (Delmerico et al. 2018's occlusion-aware information)
+  ``unobserved_voxel`` the same over unknown voxels only (their unobserved-voxel information)
+  ``rear_side_voxel``  share of rays whose first occupied voxel comes straight after an unknown
+                       one: the back of a surface seen from the other side (their rear-side voxel)
+  ``rear_side_entropy`` visibility x H of the run of unknown voxels straight before such a voxel
+                       (their rear-side entropy)
+  ``proximity_count``  sum over the unknown voxels passed of max(0, 5 - d), d their chessboard
+                       distance in voxels to the nearest occupied voxel (their proximity count)
+  ``near_unknown``     unknown voxels passed within 2 voxels of an occupied one
+  ``average_entropy``  over the rays that meet an occupied voxel: their voxels' mean H (Kriegel
+                       et al.'s average entropy; 0 when no ray meets one)
+  ``area_factor``      Vasquez-Gomez et al. 2014's area factor of the view: each ray registers at
+                       its first occupied voxel reached from a free one ("occupied") or its first
+                       unknown voxel within 2 of an occupied one ("occplane"), else as unobserved;
+                       f(occupied share; 0.2) + f(occplane share; 0.8), f(x; a) the smooth cubic
+                       that is 0 at x = 0 and 1, and peaks at 1 at x = a
+  ``depth``            voxels passed in the grid before the first non-free voxel, per ray that meets one
+
+- **Relative to the state's best view** (the column / its largest value over the views, 0 when
+  that is 0): ``unknown_first_rel``, ``information_rel``, ``proximity_rel``, ``rear_side_rel``.
+- **Camera history** (from the set of scanned positions, not their order): ``nearest_angle``,
+  ``second_angle``, ``third_angle`` (radians to the nearest, second and third nearest scanned
+  view; pi when there are fewer), ``within_30``, ``within_60`` (scanned views within 30 and 60
+  degrees), ``mean_cosine`` (mean cosine to the scanned views; 0 with none).
+- **The view itself**: ``elevation`` (the z of its unit direction), ``scans`` (views scanned so
+  far), ``spacing`` (radians to its nearest other candidate view: how dense the view set is).
+- **The whole grid**: ``grid_unknown``, ``grid_occupied`` (shares of the grid's voxels).
+
+Where ours differs from the sources (Delmerico et al.'s code, ``uzh-rpg/rpg_ig_active_reconstruction``):
+unknown is "never observed" here (they take 0.2 <= p <= 0.8, which would call a voxel hit once,
+p = 0.7, unknown); visibility multiplies (1 - p) as their paper defines it (their code multiplies
+p); their proximity count and occplane use distances along the scan rays behind each hit (an
+"occlusion shadow" kept in the tree), ours the distance to the nearest occupied voxel in the grid
+alone, so that a grid is all the metric needs; every ray is cut at the grid's edge.
+
+A quarter turn of the grid, the views and the scans about z leaves every feature unchanged (tested
+on a 4-fold symmetric view set with an even bundle), but a view straight above's: its image keeps
+world +x as its right (``nbvdata.views.look_at_rotations``), so its rays do not turn with the world.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from nbvdata.config import GridConfig, SensorConfig
+from nbvdata.grid import ray_voxels
+from nbvdata.sensor import camera_rays
+from nbvdata.views import ViewSet
+
+RAY_COLUMNS = ("grid_rays", "occupied_first", "unknown_first", "overlap", "unknown_passed", "information",
+               "occlusion_aware", "unobserved_voxel", "rear_side_voxel", "rear_side_entropy", "proximity_count",
+               "near_unknown", "average_entropy", "area_factor", "depth")
+RELATIVE_COLUMNS = ("unknown_first_rel", "information_rel", "proximity_rel", "rear_side_rel")
+HISTORY_COLUMNS = ("nearest_angle", "second_angle", "third_angle", "within_30", "within_60", "mean_cosine")
+VIEW_COLUMNS = ("elevation", "scans", "spacing")
+GRID_COLUMNS = ("grid_unknown", "grid_occupied")
+FEATURES = RAY_COLUMNS + RELATIVE_COLUMNS + HISTORY_COLUMNS + VIEW_COLUMNS + GRID_COLUMNS
+"""The columns of ``view_features``, in order (module docstring)."""
+
+METRICS = {  # planner name -> the column it maximises
+    "occlusion-aware": "occlusion_aware", "unobserved-voxel": "unobserved_voxel", "rear-side-voxel": "rear_side_voxel",
+    "rear-side-entropy": "rear_side_entropy", "proximity-count": "proximity_count",
+    "average-entropy": "average_entropy", "area-factor": "area_factor",
+}
+"""The hand-crafted metrics as planners: each takes the unscanned view with the highest value of its column."""
+
+BUNDLE = (16, 12)
+"""Default rays per view (width, height) of the coarse bundle."""
+PROXIMITY = 5
+"""Proximity count's reach: unknown voxels d < 5 voxels from an occupied one count 5 - d."""
+NEAR = 2
+"""``near_unknown`` and the area factor's occplane: unknown voxels within this many voxels of an occupied one."""
+AREA_DESIRED = (0.2, 0.8)
+"""Vasquez-Gomez's desired shares of occupied and occplane rays (their code's defaults)."""
+
+# The sums the walk writes per view (``_view_sums``), in this order.
+_SUMS = ("rays", "occupied_first", "unknown_first", "unknown_passed", "information", "occlusion_aware",
+         "unobserved_voxel", "rear_side_voxel", "rear_side_entropy", "proximity_count", "near_unknown",
+         "entropy_hit", "voxels_hit", "area_occupied", "area_occplane", "area_unobserved", "depth")
+
+
+@dataclass(frozen=True)
+class RayBundle:
+    """The coarse rays of every candidate view, walked once through the grid's voxels.
+
+    views : the candidate views (V)
+    rays : R rays per view (``width`` x ``height``)
+    offsets : (V * R + 1,) int64, voxels : (T,) int32 flat C-order voxel indices: ray v * R + r
+        passes voxels[offsets[v * R + r]:offsets[v * R + r + 1]] in order (``nbvdata.grid.ray_voxels``)
+    size : voxels per grid axis
+    spacing : (V,) float64 radians from each view to its nearest other view
+    """
+
+    views: ViewSet
+    rays: int
+    offsets: np.ndarray
+    voxels: np.ndarray
+    size: int
+    spacing: np.ndarray
+
+    @classmethod
+    def build(cls, views: ViewSet, grid: GridConfig, sensor: SensorConfig = SensorConfig(),
+              width: int = BUNDLE[0], height: int = BUNDLE[1]) -> "RayBundle":
+        """``width`` x ``height`` rays per view over the sensor's field of view (the pixel centres
+        of an image that coarse), each from the view out to the sensor's far range; ``grid`` with
+        its cube resolved (``SimConfig.scene_grid``)."""
+        if width < 1 or height < 1:
+            raise ValueError(f"a ray bundle of {width} x {height} rays: give at least 1 x 1")
+        coarse = dataclasses.replace(sensor, width=width, height=height)
+        directions = np.matmul(camera_rays(coarse)[None], views.rotations)  # (V, R, 3) world: R^T d
+        origins = views.positions.astype(np.float32)
+        ends = (views.positions[:, None] + directions * sensor.far).astype(np.float32)
+        offsets, voxels = ray_voxels(origins, ends, grid.resolution, -(grid.size // 2), grid.size)
+        units = views.unit_positions
+        cosines = np.clip(units @ units.T, -1.0, 1.0)
+        np.fill_diagonal(cosines, -1.0)
+        spacing = np.arccos(cosines.max(axis=1)) if len(units) > 1 else np.full(len(units), np.pi)
+        return cls(views, width * height, offsets, voxels, grid.size, spacing)
+
+
+def occupied_distance(probabilities: np.ndarray, reach: int = PROXIMITY) -> np.ndarray:
+    """(n^3,) int8: each voxel's chessboard distance in voxels to the nearest occupied voxel
+    (p > 0.5; 0 for an occupied voxel), capped at ``reach`` (also with no occupied voxel)."""
+    occupied = np.asarray(probabilities) > 0.5
+    if not occupied.any():
+        return np.full(occupied.size, reach, dtype=np.int8)
+    distance = ndimage.distance_transform_cdt(~occupied, metric="chessboard")
+    return np.minimum(distance, reach).astype(np.int8).reshape(-1)
+
+
+def view_sums(probabilities: np.ndarray, bundle: RayBundle) -> np.ndarray:
+    """(V, len(_SUMS)) float64: the walk's sums per view for a (n, n, n) grid (module docstring)."""
+    probabilities = np.ascontiguousarray(probabilities, dtype=np.float32)
+    if probabilities.shape != (bundle.size,) * 3:
+        raise ValueError(f"a grid of shape {probabilities.shape}; the ray bundle was made for {(bundle.size,) * 3}")
+    flat = probabilities.reshape(-1)
+    sums = np.zeros((len(bundle.views), len(_SUMS)))
+    _view_sums(flat, _entropies(flat), occupied_distance(probabilities), bundle.offsets, bundle.voxels, bundle.rays,
+               PROXIMITY, NEAR, sums)
+    return sums
+
+
+def view_features(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBundle) -> np.ndarray:
+    """(V, F) float32, the columns ``FEATURES``, of every view of ``bundle`` at the state of the
+    (n, n, n) grid ``probabilities`` (authors' encoding, 0.5 = unknown) after scans from the
+    positions ``scanned`` (P, 3) (object-centred, any radius, any order; P may be 0)."""
+    sums = view_sums(probabilities, bundle)
+    columns = dict(zip(_SUMS, sums.T))
+    rays = float(bundle.rays)
+    met = columns["occupied_first"] + columns["unknown_first"]
+    out = {"grid_rays": columns["rays"] / rays, "occupied_first": columns["occupied_first"] / rays,
+           "unknown_first": columns["unknown_first"] / rays,
+           "overlap": _ratio(columns["occupied_first"], met)}
+    for name in ("unknown_passed", "information", "occlusion_aware", "unobserved_voxel", "rear_side_voxel",
+                 "rear_side_entropy", "proximity_count", "near_unknown"):
+        out[name] = columns[name] / rays
+    out["average_entropy"] = _ratio(columns["entropy_hit"], columns["voxels_hit"])
+    registered = columns["area_occupied"] + columns["area_occplane"] + columns["area_unobserved"]
+    out["area_factor"] = (area_factor(_ratio(columns["area_occupied"], registered), AREA_DESIRED[0])
+                          + area_factor(_ratio(columns["area_occplane"], registered), AREA_DESIRED[1]))
+    out["depth"] = _ratio(columns["depth"], met)
+    for relative, name in zip(RELATIVE_COLUMNS, ("unknown_first", "information", "proximity_count", "rear_side_voxel")):
+        best = out[name].max() if len(out[name]) else 0.0
+        out[relative] = out[name] / best if best > 0 else np.zeros_like(out[name])
+    out |= camera_history(bundle.views.unit_positions, scanned)
+    units = bundle.views.unit_positions
+    out["elevation"] = units[:, 2]
+    out["scans"] = np.full(len(units), float(len(np.asarray(scanned).reshape(-1, 3))))
+    out["spacing"] = bundle.spacing
+    grid = np.asarray(probabilities)
+    out["grid_unknown"] = np.full(len(units), float((grid == 0.5).mean()))
+    out["grid_occupied"] = np.full(len(units), float((grid > 0.5).mean()))
+    return np.stack([np.asarray(out[name], dtype=np.float64) for name in FEATURES], axis=1).astype(np.float32)
+
+
+def camera_history(units: np.ndarray, scanned: np.ndarray) -> dict[str, np.ndarray]:
+    """The history columns (``HISTORY_COLUMNS``) of views ``units`` (V, 3) unit directions against
+    the scanned positions ``scanned`` (P, 3): each (V,) float64. Cosines summed term by term (no
+    BLAS), so the same on every CPU."""
+    units = np.asarray(units, dtype=np.float64)
+    scanned = np.asarray(scanned, dtype=np.float64).reshape(-1, 3)
+    if not len(scanned):
+        far = np.full(len(units), np.pi)
+        zero = np.zeros(len(units))
+        return {"nearest_angle": far, "second_angle": far.copy(), "third_angle": far.copy(), "within_30": zero,
+                "within_60": zero.copy(), "mean_cosine": zero.copy()}
+    norms = np.sqrt(scanned[:, 0] ** 2 + scanned[:, 1] ** 2 + scanned[:, 2] ** 2)
+    directions = scanned / np.where(norms > 0, norms, 1.0)[:, None]
+    cosines = np.stack([units[:, 0] * d[0] + units[:, 1] * d[1] + units[:, 2] * d[2] for d in directions], axis=1)
+    cosines = np.clip(cosines, -1.0, 1.0)
+    nearest = -np.sort(-cosines, axis=1)  # (V, P) largest cosine first
+    angles = [np.arccos(nearest[:, k]) if nearest.shape[1] > k else np.full(len(units), np.pi) for k in range(3)]
+    return {"nearest_angle": angles[0], "second_angle": angles[1], "third_angle": angles[2],
+            "within_30": (cosines >= math.cos(math.radians(30))).sum(axis=1).astype(np.float64),
+            "within_60": (cosines >= math.cos(math.radians(60))).sum(axis=1).astype(np.float64),
+            "mean_cosine": cosines.mean(axis=1)}
+
+
+def area_factor(share: np.ndarray, desired: float) -> np.ndarray:
+    """Vasquez-Gomez et al.'s area factor of a share x in [0, 1] with desired share a: -2/a^3 x^3 +
+    3/a^2 x^2 up to a, then the cubic through (a, 1) and (1, 0) with zero slope at both."""
+    x = np.asarray(share, dtype=np.float64)
+    a = float(desired)
+    m = (a - 1.0) ** 3
+    low = -2.0 / a ** 3 * x ** 3 + 3.0 / a ** 2 * x ** 2
+    high = (-2.0 * x ** 3 + (3.0 * a + 3.0) * x ** 2 - 6.0 * a * x + (3.0 * a - 1.0)) / m
+    return np.where(x <= a, low, high)
+
+
+def _ratio(numerator: np.ndarray, denominator: np.ndarray) -> np.ndarray:
+    return np.divide(numerator, denominator, out=np.zeros(len(numerator)), where=denominator > 0)
+
+
+@numba.njit(cache=True, inline="always")
+def _entropy(p):
+    q = np.float64(p)
+    if q <= 0.0 or q >= 1.0:
+        return 0.0
+    return -(q * math.log(q) + (1.0 - q) * math.log(1.0 - q))
+
+
+@numba.njit(cache=True)
+def _entropies(probabilities):
+    """(n^3,) float64 H(p) of every voxel of the flat grid ``probabilities`` (n^3,) float32."""
+    out = np.empty(probabilities.shape[0])
+    for i in range(probabilities.shape[0]):
+        out[i] = _entropy(probabilities[i])
+    return out
+
+
+@numba.njit(cache=True)
+def _view_sums(probabilities, entropies, distance, offsets, voxels, rays, reach, near, sums):
+    """Walk every ray of every view (module docstring) over the flat grid ``probabilities`` (n^3,)
+    float32 with its voxels' ``entropies`` (n^3,) float64 and ``distance`` (n^3,) int8 to the
+    nearest occupied voxel; add each ray's values to
+    its view's row of ``sums`` (V, len(_SUMS)) float64, in ray order (the same sums everywhere)."""
+    views = sums.shape[0]
+    for v in range(views):
+        for r in range(rays):
+            ray = v * rays + r
+            start, stop = offsets[ray], offsets[ray + 1]
+            if stop == start:
+                continue
+            sums[v, 0] += 1.0
+            visibility = 1.0
+            first = 0  # 1: the first non-free voxel is occupied, 2: unknown
+            passed, information, aware, unobserved = 0.0, 0.0, 0.0, 0.0
+            run_entropy, entropy_sum, count = 0.0, 0.0, 0.0
+            proximity, near_count, depth = 0.0, 0.0, 0.0
+            previous_unknown, previous_free = False, True  # nothing before the grid: free
+            registered = 0  # area factor: 1 occupied, 2 occplane
+            hit = False
+            for index in range(start, stop):
+                voxel = voxels[index]
+                p = probabilities[voxel]
+                h = entropies[voxel]
+                if p > 0.5:  # occupied: the ray ends here
+                    if first == 0:
+                        first = 1
+                    aware += visibility * h
+                    entropy_sum += h
+                    count += 1.0
+                    if previous_unknown:
+                        sums[v, 7] += 1.0
+                        sums[v, 8] += run_entropy
+                    if registered == 0 and previous_free:
+                        registered = 1
+                    hit = True
+                    break
+                entropy_sum += h
+                count += 1.0
+                aware += visibility * h
+                if p == 0.5:  # unknown
+                    if first == 0:
+                        first = 2
+                    d = distance[voxel]
+                    passed += 1.0
+                    information += h
+                    unobserved += visibility * h
+                    run_entropy += visibility * h
+                    if d < reach:
+                        proximity += reach - d
+                    if d <= near:
+                        near_count += 1.0
+                        if registered == 0:
+                            registered = 2
+                    previous_unknown, previous_free = True, False
+                else:  # free
+                    if first == 0:
+                        depth += 1.0
+                    run_entropy = 0.0
+                    previous_unknown, previous_free = False, True
+                visibility *= 1.0 - np.float64(p)
+            if first == 1:
+                sums[v, 1] += 1.0
+            elif first == 2:
+                sums[v, 2] += 1.0
+            if first != 0:
+                sums[v, 16] += depth
+            sums[v, 3] += passed
+            sums[v, 4] += information
+            sums[v, 5] += aware
+            sums[v, 6] += unobserved
+            sums[v, 9] += proximity
+            sums[v, 10] += near_count
+            if hit:
+                sums[v, 11] += entropy_sum
+                sums[v, 12] += count
+            if registered == 1:
+                sums[v, 13] += 1.0
+            elif registered == 2:
+                sums[v, 14] += 1.0
+            else:
+                sums[v, 15] += 1.0
