@@ -40,6 +40,8 @@ FIT_FLAGS = {"model": "model", "epochs": "epochs", "batch_size": "batch_size", "
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """Train a network; with --resume continue the run in --out."""
+    if args.model in RANKERS:
+        return _fit_ranker(args)
     from nbvtrain.config import TrainConfig
     from nbvtrain.train import Interrupted, fit, load_run_config
 
@@ -67,13 +69,55 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+RANKERS = ("viewrank-gbm", "viewrank-mlp")  # nbvtrain.viewrank.KINDS, without importing it for --help
+RANKER_FLAGS = {"rays": "rays", "sample": "sample", "seed": "seed", "trees": "trees", "lr": "learning_rate",
+                "epochs": "epochs", "threads": "threads"}
+
+
+def _fit_ranker(args: argparse.Namespace) -> int:
+    """``fit --model viewrank-*``: a ranker of candidate views on manifests or shard folders."""
+    from nbvtrain.rankfit import DEFAULT_CACHE, describe, fit_ranker
+    from nbvtrain.viewrank import RankerConfig
+
+    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
+                 "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config"):
+        if getattr(args, flag, None) not in (None, False, []):
+            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of a ranker ({args.model}); leave it out")
+    if args.split == "random":
+        raise ConfigError("--split random: a ranker is validated on whole meshes (the mesh split); leave --split out")
+    settings = {key: getattr(args, attr) for attr, key in RANKER_FLAGS.items() if getattr(args, attr) is not None}
+    config = RankerConfig(model=args.model, **settings)
+    out = args.out or Path("runs") / args.model
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    cache = None if args.feature_cache == Path("none") else (args.feature_cache or DEFAULT_CACHE)
+    started = time.perf_counter()
+    metrics = fit_ranker(args.shards, config, out, target=args.target, root=args.root, workers=args.workers,
+                         cache=cache, progress=progress)
+    print(f"nbvtrain fit: {describe(metrics)}; {out / metrics['file']} ({time.perf_counter() - started:.0f} s)")
+    return 0
+
+
+def _rays(text: str) -> tuple[int, int]:
+    """'16x12' -> (16, 12)."""
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give WIDTHxHEIGHT rays per view, e.g. 16x12") from None
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: each of WIDTH and HEIGHT must be >= 1")
+    return width, height
+
+
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
     from nbvtrain.predict import GridError, Predictor, prediction_dict
 
     from nbvtrain.release import released_checkpoint
+    from nbvtrain.viewrank import is_ranker_file
 
     checkpoint = args.checkpoint or released_checkpoint("scores")
+    if is_ranker_file(checkpoint):
+        return _predict_ranker(args, checkpoint)
     predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius, tta=args.tta)
     taken, scans = None, None
     reads_scans = getattr(predictor.model, "reads_scans", False)
@@ -117,6 +161,62 @@ def cmd_predict(args: argparse.Namespace) -> int:
     else:  # (B, 32, 32, 32): a list of B answers, in order
         answer = [prediction_dict(prediction, predictor, f"{source}[{index}]", taken, scans)
                   for index, prediction in enumerate(predictions)]
+    print(json.dumps(answer, indent=2, allow_nan=False))
+    return 0
+
+
+def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
+    """``predict`` with a ranker: the candidate view it ranks first, as JSON, for a shard sample (its
+    run's views and scans) or a .npy grid (the default scene's views, --scanned or --scanned-at)."""
+    from nbvdata.config import SimConfig
+    from nbvdata.views import ViewSet, look_at_rotations, parse_view_indices, scanned_views, view_sphere
+    from nbvtrain.viewrank import load_ranker
+
+    ranker = load_ranker(path)
+    for flag in ("tta", "radius"):
+        if getattr(args, flag) not in (None, False):
+            raise ConfigError(f"--{flag}: not an option of a ranker ({ranker.kind}); leave it out")
+    if args.grid.suffix == ".npy":
+        try:
+            grid, source = read_npy(args.grid), str(args.grid)
+        except NpyError as error:
+            raise ShardError(str(error)) from None
+        config = SimConfig()
+        views = view_sphere(config.views)
+        positions = np.zeros((0, 3))
+    else:
+        from nbvtrain.training_data import load_view_states
+
+        with Shard(args.grid) as shard:
+            if not 0 <= args.index < len(shard):
+                raise ShardError(f"--index {args.index}: {args.grid} holds samples 0..{len(shard) - 1}")
+            grid, source = shard.grids(args.index), f"{args.grid}[{args.index}]"
+            config = from_dict(SimConfig, shard.info.config or {})
+            view_positions = shard["view_positions"]
+            has_runs = shard.has("last_view")
+        views = ViewSet(view_positions, look_at_rotations(view_positions))
+        positions = view_positions[load_view_states([args.grid], poses="nearest")[args.index]] if has_runs else \
+            np.zeros((0, 3))
+    if np.ndim(grid) != 3:
+        raise ShardError(f"{source}: a ranker plans from one grid (32, 32, 32); this holds {np.shape(grid)}")
+    if args.scanned is not None:
+        try:
+            positions = views.positions[parse_view_indices(args.scanned, len(views), "--scanned", "3,41,120")]
+        except ValueError as error:
+            raise ConfigError(f"{error} (the scene's candidate views)") from None
+    if args.scanned_at is not None:
+        positions = _positions(args.scanned_at)
+    ranker.check_scene(config, str(path))
+    scores = ranker.view_scores(np.asarray(grid, dtype=np.float32), positions, views, config)
+    taken = scanned_views(positions, views.unit_positions)
+    scores = np.where(taken, -np.inf, scores)
+    order = [int(v) for v in np.argsort(-scores, kind="stable") if np.isfinite(scores[v])][:5]
+    view = order[0] if order else 0
+    x, y, z, yaw, pitch, roll = views[view].xyzypr.tolist()
+    answer = {"source": source, "ranker": str(path), "model": ranker.kind, "view": view,
+              "scanned": np.flatnonzero(taken).tolist(), "position": [x, y, z], "yaw": yaw, "pitch": pitch,
+              "roll": roll, "direction": views.unit_positions[view].tolist(),
+              "runner_ups": [{"view": v, "score": float(scores[v])} for v in order]}
     print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
 
@@ -270,7 +370,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise ConfigError(str(error)) from None
     score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
     weights = _numbers(args.hybrid_weight, "--hybrid-weight")
-    checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint}
+    checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint,
+                   "ranker": args.ranker}
     if args.spread is not None and args.no_stall:
         raise ConfigError("--spread never repeats a view already: drop --no-stall")
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall, args.tta,
@@ -339,14 +440,14 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
         raise ConfigError(f"--meshes {meshes}: no mesh files in it")
     sources = sources[:args.limit] if args.limit else sources
     checkpoints = {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"),
-                   "regression": args.checkpoint, "classification": args.class_checkpoint}
+                   "regression": args.checkpoint, "classification": args.class_checkpoint, "ranker": args.ranker}
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints,
                                        foreign_views=protocol.snap)
     for message in skipped:
         print(f"nbvtrain benchmark: {message}", file=sys.stderr)
     radius = config.mesh.object_size * math.sqrt(3) / 2  # what a robot knows of the object's bounding sphere
     planners += [TravelPlanner(planner, weight, radius) for weight in weights for planner in list(planners)
-                 if planner.name in ("oracle", "scores", "infogain", "farthest")]
+                 if hasattr(planner, "candidate_scores")]
     if args.reference not in {planner.name for planner in planners}:
         raise ConfigError(f"--reference {args.reference}: that planner was skipped (see above): pass its checkpoint or "
                           "another --reference")
@@ -452,7 +553,9 @@ def _add_fit(sub, released: dict[str, str]) -> None:
                      "configs/train.yaml lists)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
-    fit.add_argument("--model", choices=list(MODELS), help="network (default nbvnet-4-5)")
+    fit.add_argument("--model", choices=list(MODELS) + list(RANKERS), help="network (default nbvnet-4-5), or a "
+                     "ranker of candidate views from per-view features: viewrank-gbm (LightGBM lambdarank) or "
+                     "viewrank-mlp (a small torch scorer), trained on manifests' mesh splits (docs/viewrank.md)")
     fit.add_argument("--epochs", type=positive_int, help="total epochs (default 600)")
     fit.add_argument("--batch-size", type=positive_int, help="samples per step (default 250)")
     fit.add_argument("--lr", type=positive_float, help="Adam learning rate (default 1e-4)")
@@ -478,6 +581,17 @@ def _add_fit(sub, released: dict[str, str]) -> None:
     fit.add_argument("--mixed-scenes", action="store_true", default=None, help="train on shards made in different "
                      "scenes (other views, sensor, grid, ...; refused by default): the checkpoint records a mixed "
                      "scene")
+    fit.add_argument("--target", choices=["valid", "all"], default="valid", help="rankers: learn the gains of views "
+                     "that pass the overlap rule (valid, the ground truth's, default) or of every view (all)")
+    fit.add_argument("--rays", type=_rays, help="rankers: rays per view of the features' bundle, WIDTHxHEIGHT "
+                     "(default 16x12)")
+    fit.add_argument("--sample", type=non_negative_int, help="rankers: training rows per state at most (default 64; "
+                     "0 = every unscanned view)")
+    fit.add_argument("--trees", type=positive_int, help="viewrank-gbm: boosting rounds at most (default 600)")
+    fit.add_argument("--workers", type=positive_int, default=2, help="rankers: processes computing the features "
+                     "(default 2)")
+    fit.add_argument("--feature-cache", type=Path, help="rankers: folder keeping each shard's features for the next "
+                     "fit (default runs/viewrank-features; 'none': keep none)")
     fit.add_argument("--out", type=Path, help="run folder (default runs/MODEL)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     fit.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -574,6 +688,8 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
                           "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
     evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
+    evaluate.add_argument("--ranker", type=Path, help="the viewrank planner's model: a ranker file of nbvtrain fit "
+                          "--model viewrank-gbm|viewrank-mlp (default: the released one)")
     evaluate.add_argument("--score-checkpoint", help="candidate-score checkpoint (a run of an nbvscore-* model; "
                           f"default: the released one, {released['scores']}), or several separated by commas: an "
                           "ensemble (mean of their standardised scores)")
@@ -644,6 +760,8 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
     bench.add_argument("--travel-weight", metavar="L[,L...]", help="also run oracle, scores, infogain and farthest "
                        "weighing the path to each view: score (scaled to [0, 1]) minus L times the path (scaled by the "
                        "longest); one planner NAME-travelL per weight (docs/benchmark.md)")
+    bench.add_argument("--ranker", type=Path, help="the viewrank planner's model: a ranker file of nbvtrain fit "
+                          "--model viewrank-gbm|viewrank-mlp (default: the released one)")
     bench.add_argument("--score-checkpoint", help="candidate-score checkpoint(s), comma-separated (default: the released "
                        f"one, {released['scores']})")
     bench.add_argument("--checkpoint", type=Path, help="regression checkpoint (default: the released one, "

@@ -295,14 +295,46 @@ def scanned_state(taken: np.ndarray | None, view_units: np.ndarray | None) -> np
     return None if taken is None or view_units is None else scanned_views(taken, view_units)
 
 
+class RankingPlanner:
+    """A ranker of candidate views (``nbvtrain.viewrank``): the view of the scene's candidate views
+    (``views.*``) its per-view features score highest among those no scan marked (each scan's
+    sensor position marks its nearest view; an OctoMap has no scans, so none is marked)."""
+
+    epoch = None
+
+    def __init__(self, ranker, config: SimConfig):
+        self.ranker, self.config, self.name = ranker, config, ranker.kind
+        self.views = view_sphere(config.views)
+        self.radius, self.view_units = config.views.radius, self.views.unit_positions
+
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
+        positions = np.zeros((0, 3)) if taken is None else np.asarray(taken, dtype=np.float64).reshape(-1, 3)
+        scores = self.ranker.view_scores(grid, positions, self.views, self.config)
+        scores = np.where(scanned_views(positions, self.view_units), -np.inf, scores)
+        view = int(np.argmax(scores)) if np.isfinite(scores).any() else 0
+        return NBVPrediction(np.array([scores[view]]), self.view_units[view], self.views[view])
+
+
 NETWORK_PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
 """Planner by the checkpoint's task."""
 
 
-def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool = False) -> GridPlanner:
-    """The planner of a checkpoint (None: the released model, ``nbvtrain.release``); ``tta``:
-    quarter-turn test-time averaging where it is exact (``Predictor``; refused elsewhere)."""
+def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool = False,
+                 config: SimConfig | None = None) -> GridPlanner:
+    """The planner of a checkpoint or ranker file (None: the released model, ``nbvtrain.release``);
+    ``tta``: quarter-turn test-time averaging where it is exact (``Predictor``; refused elsewhere,
+    and for a ranker); ``config``: the scene, whose candidate views a ranker ranks."""
+    from nbvtrain.viewrank import is_ranker_file, load_ranker
+
     path = Path(checkpoint) if checkpoint is not None else released_checkpoint()
+    if is_ranker_file(path):
+        if tta:
+            raise PlanError(f"--tta: {path} is a ranker of per-view features, which quarter turns leave unchanged "
+                            "already: drop --tta")
+        config = config or SimConfig()
+        ranker = load_ranker(path)
+        ranker.check_scene(config, str(path))
+        return RankingPlanner(ranker, config)
     predictor = Predictor(path, device=device, tta=tta)
     task = predictor.model.task
     if task not in NETWORK_PLANNERS:
@@ -412,7 +444,7 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
         raise PlanError(f"{source}: no occupied voxel in the object box ({side:.3f} m cube at --center "
                         f"{_text(frame.center)}): check --center, --size and --up, and that the data is "
                         "in the world frame")
-    planner = planner or load_planner(checkpoint, device, tta)
+    planner = planner or load_planner(checkpoint, device, tta, config)
     if abs(planner.radius - config.views.radius) > 1e-3 * config.views.radius:
         raise PlanError(f"the network was trained with views at {planner.radius:g} m, the scene config has "
                         f"views.radius {config.views.radius:g} m: pass the training data's scene (--config)")

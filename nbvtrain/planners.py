@@ -320,7 +320,10 @@ class HybridPlanner(LearnedPlanner):
 
 class OraclePlanner(Planner):
     """The valid candidate view with the largest exact gain (``nbvdata.oracle``); when no view
-    passes the overlap constraint, the one with the largest gain."""
+    passes the overlap constraint, the one with the largest gain; when no view adds anything (the
+    observable surface all covered at the scene's match distance), ``farthest``'s view: the
+    unscanned view farthest from the scans, which adds the most new points at finer thresholds
+    (ObjView-Bench's 0.01 r; before, view 0 and its neighbours: short hops that add little)."""
 
     name = "oracle"
     privileged = True
@@ -331,7 +334,10 @@ class OraclePlanner(Planner):
     def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
         scores = truth.scene.oracle.score(truth.covered)
         best = scores.best(self.min_overlap)
-        return self.views[best if best is not None else int(np.argmax(scores.gains))]
+        if best is None:
+            best = (int(np.argmax(scores.gains)) if (scores.new > 0).any()
+                    else farthest_view(self.views.unit_positions, observation.positions))
+        return self.views[best]
 
     def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
                          ) -> tuple[ViewSet, np.ndarray]:
@@ -623,6 +629,72 @@ class InfoGainPlanner(Planner):
         return self.views, np.where(valid if valid.any() else np.ones_like(valid), scores.information, -np.inf)
 
 
+class MetricPlanner(Planner):
+    """A hand-crafted volumetric metric over every candidate view (``nbvdata.viewfeatures.METRICS``:
+    Delmerico et al. 2018's and Vasquez-Gomez et al. 2014's, from one walk of the grid over each
+    view's coarse ray bundle): the unscanned view with the highest value (the lowest index among
+    equals; each scanned pose marks its nearest view). No overlap rule, as in their planners."""
+
+    def __init__(self, name: str, views: ViewSet, config: SimConfig):
+        from nbvdata.viewfeatures import FEATURES, METRICS
+
+        self.name, self.views, self.config = name, views, config
+        self.column = FEATURES.index(METRICS[name])
+
+    def values(self, observation: Observation) -> np.ndarray:
+        """(V,) the metric of every candidate view at the observation."""
+        from nbvdata.viewfeatures import view_features
+        from nbvtrain.rankdata import bundle_for
+
+        features = view_features(observation.probabilities, observation.positions, bundle_for(self.views, self.config))
+        return features[:, self.column].astype(np.float64)
+
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """(views, (V,) the metric), scanned views -inf."""
+        taken = scanned_views(observation.positions, self.views.unit_positions)
+        return self.views, np.where(taken, -np.inf, self.values(observation))
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        views, scores = self.candidate_scores(observation)
+        return views[int(np.argmax(scores)) if np.isfinite(scores).any() else 0]
+
+
+class RankerPlanner(Planner):
+    """A learned ranker of candidate views (``nbvtrain.viewrank``: ``viewrank-gbm`` or
+    ``viewrank-mlp``; ``model`` its file), on any view set: the unscanned view with the highest score
+    of its per-view features (the lowest index among equals; each scanned pose marks its nearest
+    view). Named ``viewrank``."""
+
+    name = "viewrank"
+
+    def __init__(self, model: str | Path, views: ViewSet, config: SimConfig):
+        from nbvtrain.viewrank import load_ranker
+
+        self.model, self.views, self.config = model, views, config
+        self.ranker = load_ranker(model)
+        self.ranker.check_scene(config, str(model))
+
+    def __reduce__(self):
+        """Pickled as its arguments: a worker process loads the model file itself."""
+        return type(self), (self.model, self.views, self.config)
+
+    def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
+                         ) -> tuple[ViewSet, np.ndarray]:
+        """(views, (V,) the ranker's scores), scanned views -inf."""
+        taken = scanned_views(observation.positions, self.views.unit_positions)
+        scores = self.ranker.view_scores(observation.probabilities, observation.positions, self.views, self.config)
+        return self.views, np.where(taken, -np.inf, scores)
+
+    def next_view(self, observation: Observation) -> int:
+        """The ranker's choice as a candidate view index."""
+        _, scores = self.candidate_scores(observation)
+        return int(np.argmax(scores)) if np.isfinite(scores).any() else 0
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        return self.views[self.next_view(observation)]
+
+
 @dataclass(frozen=True)
 class PlannerKind:
     """A registered planner. ``name``: what ``--planners`` names; ``reads``: what it decides from
@@ -691,6 +763,18 @@ class PlannerContext:
         except NoReleasedModel as reason:
             raise Skipped(str(reason)) from None
 
+    def ranker(self) -> Path:
+        """The viewrank planner's model file: given, else the released one; ``Skipped`` when neither."""
+        from nbvtrain.release import NoReleasedModel, released_ranker
+
+        path = self.checkpoints.get("ranker")
+        if path is not None:
+            return Path(path)
+        try:
+            return released_ranker()
+        except NoReleasedModel as reason:
+            raise Skipped(str(reason)) from None
+
     def learned(self, task: str) -> list[Planner]:
         config = self.config
         return [LearnedPlanner(self.checkpoint(task), config.views.radius, task, self.views, self.no_stall, config,
@@ -736,6 +820,27 @@ register_planner("random", ("seed",), "a uniformly random candidate view: a lowe
 register_planner("farthest", ("poses",), "the unscanned candidate view farthest in angle from every scanned pose (greedy "
                  "farthest-point sampling of the view sphere): what spreading the views alone covers, without the grid")(
     lambda context: [FarthestPlanner(context.views)])
+register_planner("viewrank", ("grid", "poses"), "the unscanned candidate view a ranker of per-view features scores "
+                 "highest (`nbvtrain.viewrank`, default the released one): the rays of each view through the grid, its "
+                 "angles to the scans, the grid's summary; any view set", options=("--ranker FILE",))(
+    lambda context: [RankerPlanner(context.ranker(), context.views, context.config)])
+for _metric, _what in (("occlusion-aware", "visibility-weighted entropy of every voxel its rays pass (Delmerico et al. "
+                                           "2018)"),
+                       ("unobserved-voxel", "visibility-weighted entropy of the unknown voxels its rays pass (Delmerico "
+                                            "et al. 2018)"),
+                       ("rear-side-voxel", "rays whose first occupied voxel comes straight after an unknown one: the "
+                                           "back of seen surface (Delmerico et al. 2018)"),
+                       ("rear-side-entropy", "entropy of the unknown voxels straight in front of such rear-side "
+                                             "voxels (Delmerico et al. 2018)"),
+                       ("proximity-count", "unknown voxels its rays pass, weighted by nearness to occupied ones "
+                                           "(Delmerico et al. 2018)"),
+                       ("average-entropy", "mean entropy per voxel along its rays that meet surface (Kriegel et al. "
+                                           "2012, over every view)"),
+                       ("area-factor", "Vasquez-Gomez et al. 2014's area factor: occupied and occplane shares of "
+                                       "its rays near 20 % and 80 %")):
+    register_planner(_metric, ("grid", "poses"), f"the unscanned candidate view with the most {_what}; over every "
+                     "candidate view, from its coarse ray bundle (`nbvdata.viewfeatures`)", default=False)(
+        lambda context, _metric=_metric: [MetricPlanner(_metric, context.views, context.config)])
 register_planner("hybrid", ("grid", "poses"), "the score network's scores plus a weight times information gain, both "
                  "standardised over the unscanned candidate views, one planner per weight (`hybrid-w1`, ...)",
                  options=("--hybrid-weight W[,W...]",), default=False)(

@@ -65,6 +65,16 @@ def released_checkpoint(task: str = "scores") -> Path:
     return path
 
 
+def released_ranker() -> Path:
+    """The released ranker of candidate views (``nbvtrain.viewrank``); ``NoReleasedModel`` otherwise."""
+    name = released_files().get("viewrank")
+    path = released_folder() / name if name else None
+    if path is None or not path.is_file():
+        raise NoReleasedModel("no viewrank model is released with this package: pass a ranker written by nbvtrain fit "
+                              "--model viewrank-gbm (runs/NAME/viewrank.json) with --ranker")
+    return path
+
+
 def reference_grid() -> np.ndarray:
     """(32, 32, 32) float32: a fixed state to check released weights by - a box seen from +x
     (occupied face, free space in front of it, the rest unknown), built from integers only."""

@@ -36,14 +36,15 @@ STAGES = (
     ("base", "nbvdata", ("text", "errors", "config", "files", "logodds", "commandline", "userarrays", "layout_scvp",
                          "layout_tammes", "views", "paths", "cloud")),
     ("schema", "nbvdata", ("shards", "summary", "manifest")),
-    ("simulation", "nbvdata", ("_open3d", "mesh", "shapes", "sensor", "grid", "coverage", "oracle", "setcover",
-                               "scene", "episode", "policy", "sources")),
+    ("simulation", "nbvdata", ("_open3d", "mesh", "shapes", "sensor", "grid", "viewfeatures", "coverage", "oracle",
+                               "setcover", "scene", "episode", "policy", "sources")),
     ("datasets", "nbvdata", ("claims", "generate", "rerun", "env", "card", "publish", "export", "gridstats", "authors",
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
-                              "dataset", "checkpoint", "train", "baselines", "predict", "release", "rl")),
-    ("planning", "nbvtrain", ("sensordata", "planners", "plan", "evaluate", "statistics", "benchmark",
-                              "benchmark_report", "policy", "cli", "__main__")),
+                              "dataset", "checkpoint", "train", "baselines", "predict", "rl")),
+    ("planning", "nbvtrain", ("_lightgbm", "rankdata", "viewrank", "rankfit", "release", "sensordata", "planners",
+                              "plan", "evaluate", "statistics", "benchmark", "benchmark_report", "policy", "cli",
+                              "__main__")),
 )
 STAGE = {f"{package}.{module}": number for number, (_, package, modules) in enumerate(STAGES) for module in modules}
 SCHEMA_SIDE = {name for name, stage in STAGE.items() if stage <= 1}  # what learning may read of nbvdata
