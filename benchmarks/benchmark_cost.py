@@ -63,7 +63,7 @@ def wall_clock(sources: list, workers: int, total: int) -> dict[str, float]:
               f"-> {seconds[name] / len(sources) * total / 60:5.1f} min for {total}")
     config, planners = planners_for(bench.load_protocol("paper"))
     began = time.perf_counter()
-    evaluation.evaluate(sources, planners, config, scans=10, starts=2, seed=0, workers=workers)
+    evaluation.evaluate(sources, planners, config, scans=10, random_starts=2, seed=0, workers=workers)
     seconds["evaluate"] = time.perf_counter() - began
     print(f"  baseline nbvtrain evaluate (same planners, 3 starts, 10 scans): {seconds['evaluate']:7.1f} s")
     return seconds

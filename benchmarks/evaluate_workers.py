@@ -2,12 +2,12 @@
 
 The ten shared test meshes (../shared/meshes/test, required), every planner that
 needs no checkpoint of yours (the released score and regression networks, information gain, the
-oracle, random), ``--starts 2 --seed 1``, default settings. Each job is the command itself in a
+oracle, random), ``--random-starts 2 --seed 1``, default settings. Each job is the command itself in a
 fresh process (imports, starting the worker processes and building the planners included); the
 two alternate ``--repeats`` times and the figures are medians. Their coverage.csv files must be
 the same but for the seconds column (checked).
 
-    python benchmarks/evaluate_workers.py [--repeats 2] [--workers 2] [--starts 2]
+    python benchmarks/evaluate_workers.py [--repeats 2] [--workers 2] [--random-starts 2]
 
 Target (issue 16): >= 1.6x faster with 2 workers than with 1 on an idle 2-core machine.
 """
@@ -36,12 +36,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2, help="alternated pairs of jobs")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--starts", type=int, default=2)
+    parser.add_argument("--random-starts", type=int, default=2)
     args = parser.parse_args()
     if not TEST_MESHES.is_dir():
         raise SystemExit(f"{TEST_MESHES} absent: this benchmark needs the shared test meshes")
     meshes = str(TEST_MESHES)
-    print(f"nbvtrain evaluate --meshes {meshes} --planners {PLANNERS} --starts {args.starts} --seed 1, "
+    print(f"nbvtrain evaluate --meshes {meshes} --planners {PLANNERS} --random-starts {args.random_starts} --seed 1, "
           f"1 against {args.workers} workers, each a fresh process")
     seconds: dict[int, list[float]] = {1: [], args.workers: []}
     reference = None
@@ -50,7 +50,8 @@ def main() -> None:
             for workers in (1, args.workers):
                 out = Path(tmp) / f"{repeat}-{workers}"
                 command = [sys.executable, "-m", "nbvtrain", "evaluate", "--meshes", meshes, "--planners", PLANNERS,
-                           "--starts", str(args.starts), "--seed", "1", "--workers", str(workers), "--out", str(out)]
+                           "--random-starts", str(args.random_starts), "--seed", "1", "--workers", str(workers),
+                           "--out", str(out)]
                 start = time.perf_counter()
                 done = subprocess.run(command, capture_output=True, text=True)
                 seconds[workers].append(time.perf_counter() - start)

@@ -27,7 +27,7 @@ from nbvdata.mesh import ObjectMesh, load_mesh
 from nbvdata.oracle import pack_bits
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import ShardError, shard_files
-from nbvdata.text import plural
+from nbvdata.text import plural, some_names
 from nbvdata.userarrays import GridError, NpyError, check_grids, read_npy
 from nbvdata.views import parse_view_indices
 
@@ -113,8 +113,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
                                 scene.views[int(views[step])] if step < len(views) else None)
     if recording is not None:
         print(f"wrote {recording.path}")
+    total, observable = scene.coverage.coverage(covered)
+    title = (f"{obj.source}: {plural(len(views), 'scan')}, coverage {100 * total:.1f}% of the whole surface, "
+             f"{100 * observable:.1f}% of the observable")
     out = render_state(grid.probabilities(), config.scene_grid.extent, args.out, scene.views,
-                       scanned=[int(v) for v in views], title=f"{obj.source}: {plural(len(views), 'scan')}")
+                       scanned=[int(v) for v in views], title=title)
     print(f"wrote {out}")
     return 0
 
@@ -249,6 +252,10 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if args.by_step:
         print("\nGrids by reconstruction step (means; span: median extent of the occupied voxels):")
         print(format_by_step(steps))
+    target = args.shards[0] if len(args.shards) == 1 else "DIR"
+    read = "the labels counted above and the grids" if args.by_step else \
+        "only the labels counted above, not the grids (--by-step reads those too)"
+    print(f"\nchecked: {read}; nbvdata verify {target} reads every shard whole")
     return 0
 
 
@@ -272,11 +279,21 @@ def cmd_publish(args: argparse.Namespace) -> int:
     print(f"  card     {result.path.with_suffix('.md')} (+ {result.path.with_suffix('.png').name})")
     for kind in ("random", "mesh"):
         print(f"  {kind} split: {_split_counts(content['splits'][kind])}")
-    unrecorded = sum(mesh["license"] == NOT_RECORDED for mesh in content["meshes"])
+    unrecorded = [mesh["source"] for mesh in content["meshes"] if mesh["license"] == NOT_RECORDED]
     if unrecorded:
-        print(f"nbvdata publish: no license recorded for {plural(unrecorded, 'mesh')}: pass --meshes DIR, the "
-              "folder whose MESHES.tsv lists them, with the next version", file=sys.stderr)
+        print(f"nbvdata publish: no license recorded for {plural(len(unrecorded), 'mesh')} "
+              f"({some_names(unrecorded)}): {_license_fix(args.meshes)}, and publish the next version", file=sys.stderr)
     return 0
+
+
+def _license_fix(meshes: Path | None) -> str:
+    """What ``publish`` asks for when meshes have no license: --meshes, a MESHES.tsv in it, or rows in one."""
+    table = "tab-separated, with the columns file and license_or_origin, a row per mesh file"
+    if meshes is None:
+        return f"pass --meshes DIR, the folder the mesh files came from, with a MESHES.tsv ({table})"
+    if not any(Path(meshes).rglob("MESHES.tsv")):
+        return f"--meshes {meshes} has no MESHES.tsv in it or below: add one ({table})"
+    return f"add their rows to a MESHES.tsv in or below --meshes {meshes} ({table})"
 
 
 def _split_counts(split: dict) -> str:
@@ -409,9 +426,9 @@ def _show_sample(args: argparse.Namespace) -> int:
     if scored:
         valid = overlaps >= config["oracle"]["min_overlap"]
         ranked = [int(v) for v in np.argsort(-np.where(valid, gains, -1.0), kind="stable") if v != nbv and valid[v]]
-        title += f" (+{100 * gains[nbv]:.1f}% surface, overlap {100 * overlaps[nbv]:.0f}%)"
-    if coverage is not None:
-        title += f", coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%"
+        title += f" (+{100 * gains[nbv]:.1f}% of the observable surface, overlap {100 * overlaps[nbv]:.0f}%)"
+    if coverage is not None:  # the shard's coverage: of the observable surface (docs/schema.md)
+        title += f", observable coverage {100 * coverage[0]:.1f}% -> {100 * coverage[1]:.1f}%"
     # the shard's cube: fixed, or fitted to the object (null extent); imported shards publish none
     extent = (config.get("grid", {}).get("extent") or config.get("mesh", {}).get("object_size")
               or SimConfig().scene_grid.extent)
@@ -490,7 +507,8 @@ def _add_generate(sub) -> None:
 
 def _add_inspect(sub) -> None:
     """``inspect``: its options."""
-    inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread")
+    inspect = sub.add_parser("inspect", help="summarise shards: samples per mesh, coverage, label spread (reads "
+                             "the labels, not the grids: nbvdata verify reads every shard whole)")
     inspect.add_argument("shards", type=Path, nargs="+", help="shard files or folders of shards")
     inspect.add_argument("--top", type=non_negative_int, default=10, help="most frequent NBVs to list")
     inspect.add_argument("--by-step", action="store_true",

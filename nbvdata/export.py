@@ -206,17 +206,22 @@ def write_scvp(paths: list[Path], out: Path) -> ExportReport:
 
 
 def _check_scvp(shard: Shard) -> None:
-    """One line naming the fix for a shard SCVP's format cannot hold."""
+    """One line naming every setting a shard lacks for SCVP's format, all at once (each one
+    missing costs a regeneration)."""
+    lacks, fixes = [], []
     if not shard.has("cover"):
-        raise ShardError(f"{shard.path}: no set-cover labels; generate with --set oracle.cover=true to export "
-                         "--format scvp")
+        lacks.append("no set-cover labels")
+        fixes.append("--set oracle.cover=true")
     views = len(shard["view_positions"])
     if views != SCVP_VIEWS:
-        raise ShardError(f"{shard.path}: {plural(views, 'candidate view')}, SCVP's format has their {SCVP_VIEWS}: "
-                         "generate with --set views.layout=scvp-32 --set views.count=32")
+        lacks.append(f"{plural(views, 'candidate view')} (SCVP's format has their {SCVP_VIEWS})")
+        fixes.append("--set views.layout=scvp-32 --set views.count=32")
     size = shard.file["grids"].shape[1]
     if size != SCVP_GRID:
-        raise ShardError(f"{shard.path}: {size}^3 grids, SCVP reads {SCVP_GRID}^3: generate with grid.size 32")
+        lacks.append(f"{size}^3 grids (SCVP reads {SCVP_GRID}^3)")
+        fixes.append(f"--set grid.size={SCVP_GRID}")
+    if lacks:
+        raise ShardError(f"{shard.path}: {', '.join(lacks)}; generate with {' '.join(fixes)} to export --format scvp")
 
 
 # --format name -> writer(shard paths, out folder) -> ExportReport

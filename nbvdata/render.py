@@ -9,7 +9,11 @@ orientation (z up). The views are drawn nearer than they are - their directions 
 distances shrunk alike (the legend says by how much) - so the object fills much of the picture
 rather than a fifth of it. Unknown voxels enclosed by others (the inside of an object, which no
 scan reaches) would show no face: then the quarter of the grid facing the viewer is cut away,
-so that the cut shows them, and the legend says so. The PNG is cropped to what is drawn.
+so that the cut shows them, and the legend says so. The scanned views' arrows are numbered in
+scan order. What lies behind the grid's centre, as seen from the picture's viewpoint (views,
+their arrows and numbers), is drawn before the voxels and what lies in front after them, so the
+voxels hide a view behind the object and never one in front: exact for views outside the grid's
+circumscribed sphere (all of them, drawn nearer as they are). The PNG is cropped to what is drawn.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib import patheffects  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
@@ -37,6 +42,8 @@ DRAWN_RADIUS = 1.2  # the farthest view is drawn this many grid sides from the c
 MARGIN_PX = 8  # blank pixels kept around the drawing, the title and the legend
 VIEW = {"elev": 30, "azim": -60}  # the 3D axes' viewpoint (matplotlib's default): from +x, -y and above
 CUT_AWAY = "front quarter cut away to show the inside"
+BEHIND, VOXELS, IN_FRONT, ON_TOP = 1, 2, 3, 4  # the draw order (zorder): behind the grid's centre, the voxels, ...
+HALO = [patheffects.withStroke(linewidth=3, foreground="white")]  # the scan numbers readable over the voxels
 
 
 def render_state(
@@ -128,8 +135,8 @@ def draw_state(
         others (e.g. a robot's sensor positions) only as arrows (None: all views are candidates).
         The red arrow's legend names its view index only when it is a candidate.
     points : (P, 3) a partial point cloud in metres, object frame, drawn as black dots
-    scanned : indices of the views scanned so far, drawn as green arrows (``scanned_label`` and
-        their count in the legend)
+    scanned : indices of the views scanned so far, in scan order, drawn as green arrows numbered
+        1, 2, ... in that order (``scanned_label`` and their count in the legend)
     """
     probabilities = np.asarray(probabilities)
     n = probabilities.shape[0]
@@ -142,6 +149,7 @@ def draw_state(
     fig = plt.figure(figsize=(7, 7), dpi=110)
     ax = fig.add_axes((0, 0, 1, 1), projection="3d")
     ax.view_init(**VIEW)
+    ax.computed_zorder = False  # drawn in the order BEHIND, VOXELS, IN_FRONT, ON_TOP (module docstring)
     filled = occupied | unknown
     cut = bool((unknown & enclosed(filled)).any())
     if cut:
@@ -149,7 +157,7 @@ def draw_state(
         filled[n - n // 2:, :n // 2] = False  # the quarter facing VIEW's viewpoint
     quads, face_colors = exposed_faces(filled, colors)
     ax.add_collection3d(Poly3DCollection(quads, facecolors=face_colors, edgecolors=(0, 0, 0, 0.08),
-                                         linewidths=0.2))
+                                         linewidths=0.2, zorder=VOXELS))
 
     scale = n / extent  # metres -> grid units; the grid's centre is at n / 2
     def to_grid(points: np.ndarray) -> np.ndarray:
@@ -165,16 +173,18 @@ def draw_state(
               Patch(facecolor="white", edgecolor="0.6", label=f"free ({(probabilities < 0.5).sum()}, not drawn)")]
     if cut:
         legend.append(Patch(facecolor="none", edgecolor="none", label=CUT_AWAY))
-    if points is not None and len(points):
-        ax.computed_zorder = False  # the cloud over the voxels, not hidden among them
-        ax.scatter(*to_grid(points).T, s=2, c="black", depthshade=False, zorder=10)
+    if points is not None and len(points):  # the cloud over the voxels, not hidden among them
+        ax.scatter(*to_grid(points).T, s=2, c="black", depthshade=False, zorder=ON_TOP)
         legend.append(Line2D([], [], linestyle="", marker="o", markersize=2, color="black",
                              label=f"partial cloud ({len(points)} points)"))
     upper = views is not None and views.positions[:, 2].min() >= 0  # a dome: draw its half of the cube
     if views is not None:
         positions = to_grid(views.positions * shrink)
+        layer = np.where((positions - n / 2) @ toward_viewer() < 0, BEHIND, IN_FRONT)  # each view's
         candidates = len(positions) if candidates is None else candidates
-        ax.scatter(*positions[:candidates].T, s=3, c="0.55", depthshade=False)
+        for side in (BEHIND, IN_FRONT):
+            ax.scatter(*positions[:candidates][layer[:candidates] == side].T, s=3, c="0.55", depthshade=False,
+                       zorder=side)
         legend.append(Line2D([], [], linestyle="", marker="o", markersize=4, color="0.55",
                              label=f"{views_label} ({candidates})"))
         arrows = ([(i, SCANNED) for i in scanned] + [(i, RUNNER_UP) for i in others]
@@ -182,14 +192,21 @@ def draw_state(
         for index, color in arrows:
             start = positions[index]
             arrow = (to_grid(np.zeros(3)) - start) * 0.35
-            ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3)
+            ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3, zorder=layer[index])
+        for number, index in enumerate(scanned, start=1):  # scan order, just beyond the arrow's tail
+            ax.text(*(positions[index] + 0.08 * (positions[index] - n / 2)), str(number), color=SCANNED,
+                    fontsize=9, fontweight="bold", ha="center", va="center", zorder=layer[index],
+                    path_effects=HALO)
         if highlight is not None:
-            which = f" (view {highlight})" if highlight < candidates else ""
-            legend.append(Line2D([], [], color=NEXT, linewidth=2.5, label=labels[0] + which))
+            which = [f"view {highlight}"] if highlight < candidates else []
+            which += [f"scan {list(scanned).index(highlight) + 1}"] if highlight in scanned else []
+            legend.append(Line2D([], [], color=NEXT, linewidth=2.5,
+                                 label=labels[0] + (f" ({', '.join(which)})" if which else "")))
         if len(others):
             legend.append(Line2D([], [], color=RUNNER_UP, linewidth=2.5, label=labels[1]))
         if len(scanned):
-            legend.append(Line2D([], [], color=SCANNED, linewidth=2.5, label=f"{scanned_label} ({len(scanned)})"))
+            legend.append(Line2D([], [], color=SCANNED, linewidth=2.5,
+                                 label=f"{scanned_label} ({len(scanned)}, numbered in scan order)"))
         if shrink < 1.0:
             legend.append(Patch(facecolor="none", edgecolor="none",
                                 label=f"views drawn at {100 * shrink:.0f}% of their distance (directions exact)"))
@@ -212,6 +229,12 @@ def draw_state(
     return fig
 
 
+def toward_viewer() -> np.ndarray:
+    """(3,) unit vector from the grid's centre towards the picture's viewpoint (``VIEW``)."""
+    elev, azim = np.radians(VIEW["elev"]), np.radians(VIEW["azim"])
+    return np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+
+
 def _orientation(ax, n: int) -> None:
     """An x, y, z triad just outside the grid's lowest corner (so the grid hides none of it), a
     quarter of a side long, labelled."""
@@ -219,8 +242,8 @@ def _orientation(ax, n: int) -> None:
     for axis, name in enumerate("xyz"):
         tip = np.zeros(3)
         tip[axis] = length
-        ax.quiver(*origin, *tip, color=AXES_COLOUR, linewidth=1.2, arrow_length_ratio=0.25)
-        ax.text(*(origin + tip * 1.3), name, color=AXES_COLOUR, fontsize=9, ha="center", va="center")
+        ax.quiver(*origin, *tip, color=AXES_COLOUR, linewidth=1.2, arrow_length_ratio=0.25, zorder=ON_TOP)
+        ax.text(*(origin + tip * 1.3), name, color=AXES_COLOUR, fontsize=9, ha="center", va="center", zorder=ON_TOP)
 
 
 # Unit square corners (u, v) of a voxel face, in drawing order.

@@ -114,6 +114,7 @@ import yaml
 from nbvdata.errors import UserError
 from nbvdata.logodds import probability
 from nbvdata.text import plural
+from nbvdata.userarrays import file_kind, is_hdf5
 
 SCHEMA_VERSION = 1
 PARTIAL_SUFFIX = ".partial"
@@ -345,6 +346,9 @@ class Shard:
         try:
             self.file = h5py.File(self.path, "r")
         except OSError:
+            if not is_hdf5(self.path):  # no shard at all: nothing to delete or regenerate
+                raise ShardError(f"{self.path}: not an HDF5 file ({file_kind(self.path)}), so not a shard: give the "
+                                 ".h5 files nbvdata generate (or import-legacy) wrote") from None
             raise ShardError(f"{self.path}: not a readable HDF5 file (truncated or corrupt?): "
                              "delete it and run nbvdata generate again") from None
         try:

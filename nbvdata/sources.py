@@ -1,8 +1,10 @@
 """Where the meshes of a job come from, and their scenes: the sources ``nbvdata generate``,
 ``nbvdata.env`` and ``nbvtrain evaluate`` share.
 
-- ``MeshSource``: a mesh file or a built-in shape, with its id (the file's sha256);
-  ``builtin_sources`` (the default job), ``mesh_sources`` (a folder, a file or a .txt list),
+- ``MeshSource``: a mesh file or a built-in shape, with its id (the file's sha256) and the name
+  tables show (``title``: the stem, or the path under the folder given where stems collide, as
+  ShapeNet's ``CAT/ID/models/model_normalized.obj``); ``builtin_sources`` (the default job),
+  ``mesh_sources`` (a folder, a file or a .txt list),
   ``part_sources`` (the train, val or test meshes of a published version, found by name and
   sha256 under a root: ``find_part_meshes``).
 - ``SceneCache``: the scenes (mesh, scene, view cache) of the last few meshes asked for; a scene
@@ -12,7 +14,8 @@
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict, defaultdict
+import os
+from collections import Counter, OrderedDict, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +36,8 @@ class MeshSource:
     name: str
     mesh_id: str
     path: Path | None = None
+    label: str = ""
+    """The path under the folder given, where another source has the same stem (``with_labels``)."""
 
     def load(self, config: MeshConfig) -> ObjectMesh:
         if self.path is None:
@@ -42,6 +47,19 @@ class MeshSource:
     @property
     def stem(self) -> str:
         return self.name.removeprefix("builtin:") if self.path is None else self.path.stem
+
+    @property
+    def title(self) -> str:
+        """What evaluate's and benchmark's tables, plots and recordings call the mesh: ``label`` or the stem."""
+        return self.label or self.stem
+
+
+def with_labels(sources: list[MeshSource], root: Path) -> list[MeshSource]:
+    """``sources`` with ``label`` set on each file whose stem another one has too: its path under
+    ``root`` (posix, ``02691156/1a2b/models/model_normalized.obj``), so tables tell them apart."""
+    stems = Counter(source.stem for source in sources)
+    return [dataclasses.replace(source, label=Path(os.path.relpath(source.path, root)).as_posix())
+            if source.path is not None and stems[source.stem] > 1 else source for source in sources]
 
 
 def builtin_sources(config: MeshConfig = MeshConfig()) -> list[MeshSource]:
@@ -54,8 +72,10 @@ def mesh_sources(where: Path) -> tuple[list[MeshSource], list[tuple[str, str]]]:
     (one path per line, relative to the list; # starts a comment).
 
     Returns (sources, failures): files that cannot even be read are failures (name, reason).
+    Files with the same stem are labelled with their path under the folder (or the list's folder).
     """
     where = Path(where)
+    root = where.parent if where.is_file() else where
     if where.is_file() and where.suffix.lower() == ".txt":
         lines = [line.split("#", 1)[0].strip() for line in where.read_text().splitlines()]
         files = [where.parent / line for line in lines if line]
@@ -71,7 +91,7 @@ def mesh_sources(where: Path) -> tuple[list[MeshSource], list[tuple[str, str]]]:
             sources.append(MeshSource(path.name, sha256_file(path), path))
         except OSError as error:
             failures.append((str(path), f"cannot read the file: {error.strerror or error}"))
-    return sources, failures
+    return with_labels(sources, root), failures
 
 
 def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) -> tuple[list[MeshSource], dict]:
@@ -81,7 +101,8 @@ def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) 
     {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
     published = load_manifest(manifest)
     meshes = find_part_meshes(published, part, mesh_root)
-    sources = [MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes]
+    sources = with_labels([MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes],
+                          Path(mesh_root or "."))
     record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
     return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 

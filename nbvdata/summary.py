@@ -5,7 +5,9 @@ Imported shards (no ``mesh_id``) count under one entry per dataset, named by the
 without its row range; statistics of datasets they lack (gains, overlaps, coverage) show "-".
 Shards whose runs left the oracle's path (``move``: exploration, a policy) add how the runs
 moved and which policy they followed; shards with point clouds (``points_count``) the mean
-number of points scanned by each step.
+number of points scanned by each step. Meshes of one file name (ShapeNet's
+``CAT/ID/models/model_normalized.obj``) show the first 12 hex digits of their id beside it, as
+their shards' names do.
 """
 
 from __future__ import annotations
@@ -160,10 +162,13 @@ def format_summary(summary: Summary, top: int = 10) -> str:
     lines.append("")
     lines.append(f"{'mesh':44s} {'shards':>6s} {'runs':>5s} {'samples':>7s} {'scans/run':>9s} "
                  f"{'cov@1':>6s} {'final':>6s}  (observable coverage, mean over runs)")
-    for entry in sorted(summary.meshes.values(), key=lambda e: e.source):
+    shared = Counter(entry.source for entry in summary.meshes.values())
+    for key, entry in sorted(summary.meshes.items(), key=lambda item: (item[1].source, item[0])):
         mean = lambda values: f"{100 * np.mean(values):5.1f}%" if values else "    - "  # noqa: E731
         steps = f"{np.mean(entry.steps):9.1f}" if entry.steps else f"{'-':>9s}"
-        lines.append(f"{entry.source[:44]:44s} {entry.shards:6d} {entry.runs:5d} {entry.samples:7d} {steps} "
+        # one file name in many folders (ShapeNet's model_normalized.obj): the id too, as the shard names have it
+        name = entry.source[:44] if shared[entry.source] == 1 else f"{entry.source[:29]} ({key[:12]})"
+        lines.append(f"{name:44s} {entry.shards:6d} {entry.runs:5d} {entry.samples:7d} {steps} "
                      f"{mean(entry.first_coverage)} {mean(entry.final_coverage)}")
     if summary.samples:
         counts = np.array(list(summary.nbv_counts.values()), dtype=np.float64)

@@ -12,6 +12,8 @@ from nbvdata.errors import UserError
 
 NPY_MAGIC = b"\x93NUMPY"
 ZIP_MAGIC = b"PK\x03\x04"
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+NOT_NPY = "not a numpy array file (.npy): write it with np.save"
 ENCODING = "float occupancy probabilities in [0, 1], 0.5 = unknown (the authors' encoding)"
 
 
@@ -23,10 +25,12 @@ class GridError(UserError):
     """Input that is not occupancy grids in the authors' encoding; the message says what is wrong."""
 
 
-def read_npy(path: Path) -> np.ndarray:
+def read_npy(path: Path, not_npy: str = NOT_NPY) -> np.ndarray:
     """The array in the ``.npy`` file at ``path``. NpyError when the file is missing, is no
     ``.npy`` file (text, an ``.npz`` archive, a pickle), is damaged, or holds Python objects:
-    those are refused, never unpickled (``allow_pickle=False``)."""
+    those are refused, never unpickled (``allow_pickle=False``). ``not_npy``: what the message
+    says after the path of a file that is no ``.npy`` file at all (a caller that also reads other
+    kinds of file names them)."""
     try:
         with open(path, "rb") as handle:
             head = handle.read(len(NPY_MAGIC))
@@ -37,7 +41,7 @@ def read_npy(path: Path) -> np.ndarray:
     if head.startswith(ZIP_MAGIC):
         raise NpyError(f"{path}: holds several arrays (an .npz archive), not one: np.save one array")
     if head != NPY_MAGIC:
-        raise NpyError(f"{path}: not a numpy array file (.npy): write it with np.save")
+        raise NpyError(f"{path}: {not_npy}")
     try:
         return np.load(path, allow_pickle=False)
     except ValueError as error:
@@ -49,6 +53,43 @@ def read_npy(path: Path) -> np.ndarray:
         reason = str(error) or type(error).__name__
     detail = f" ({reason.strip().splitlines()[0]})" if reason.strip() else ""
     raise NpyError(f"{path}: a .npy file, damaged or cut short{detail}: write it again with np.save")
+
+
+def is_hdf5(path: Path) -> bool:
+    """Whether the file at ``path`` starts as an HDF5 file does: its signature at byte 0, or after
+    a user block (512, 1024, 2048, ... bytes). A damaged or truncated HDF5 file keeps it."""
+    try:
+        with open(path, "rb") as handle:
+            size, offset = Path(path).stat().st_size, 0
+            while offset + len(HDF5_MAGIC) <= size:
+                handle.seek(offset)
+                if handle.read(len(HDF5_MAGIC)) == HDF5_MAGIC:
+                    return True
+                offset = 512 if offset == 0 else 2 * offset
+    except OSError:
+        return False
+    return False
+
+
+def file_kind(path: Path) -> str:
+    """What the file at ``path`` is, in a few words from its first bytes, for the message about a
+    file that is not what was asked for: "an empty file", "a numpy array file (.npy)", "an .npz
+    or other zip archive", "an HDF5 file", "a text file" or "other bytes"."""
+    with open(path, "rb") as handle:
+        head = handle.read(512)
+    if not head:
+        return "an empty file"
+    if head.startswith(NPY_MAGIC):
+        return "a numpy array file (.npy)"
+    if head.startswith(ZIP_MAGIC):
+        return "an .npz or other zip archive"
+    if is_hdf5(path):
+        return "an HDF5 file"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError as error:  # a multi-byte letter may be cut at the end
+        text = head[:error.start].decode("utf-8") if error.start >= len(head) - 3 else "\x00"
+    return "a text file" if all(char.isprintable() or char in "\t\n\r\f" for char in text) else "other bytes"
 
 
 def check_grids(grids: np.ndarray, size: int = 32) -> np.ndarray:

@@ -318,10 +318,10 @@ def benchmark_mesh(source: MeshSource, planners: list[Planner], config: SimConfi
     measure = SurfaceMeasure(scene, protocol)
     cache = mesh_cache(scene, planners)
     firsts = start_views_of(scene, source.mesh_id, protocol, starts, seed)
-    result.floors = [{"mesh": source.stem, "start": number, "start_view": first}
+    result.floors = [{"mesh": source.title, "start": number, "start_view": first}
                      | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
                      for number, first in enumerate(firsts)]
-    with recording_of(rerun, source.stem) as recording:
+    with recording_of(rerun, source.title) as recording:
         for index, planner in enumerate(planners):
             if protocol.snap and not isinstance(planner, SnappedPlanner):
                 planner = SnappedPlanner(planner, scene.views)
@@ -345,7 +345,7 @@ def benchmark_mesh(source: MeshSource, planners: list[Planner], config: SimConfi
                                               f"{first}: {error} (the mesh's rows are left out, so that every planner is "
                                               "compared on the same meshes; tracebacks.txt has where)",
                                       trace=traceback.format_exc())
-                key = {"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first}
+                key = {"mesh": source.title, "planner": planner.name, "start": number, "start_view": first}
                 path = path_lengths(np.array([[row["x"], row["y"], row["z"]] for row in rows]), measure.radius)
                 for row, extra, travelled in zip(rows, run.rows, path):
                     result.rows.append(key | {"scan": row["scan"], "coverage": row["coverage"],

@@ -4,7 +4,8 @@ Every planner drives the same simulator as ``nbvdata generate`` (``nbvdata.episo
 scans cast live so continuous poses work): scan from the start view, then ``scans - 1`` times
 ask the planner for the next pose, scan there and integrate. Start 0 is the candidate view in
 front of the object (nearest to +x, as the paper starts), starts 1..K are seeded random
-candidate views, the same for every planner, drawn from the evaluation's own stream
+candidate views (``--random-starts K``: K + 1 starts in all; ``nbvtrain benchmark --starts N``
+counts all N), the same for every planner, drawn from the evaluation's own stream
 (``evaluation_rng``), never the front view nor one of the start views of the ``episode.runs_per_mesh`` runs
 ``nbvdata generate`` makes of that mesh with the same seed (``nbvdata.episode.start_view``), so
 evaluating on a training mesh does not begin at a training sample. Each reconstruction's seed
@@ -116,15 +117,15 @@ def evaluation_rng(seed: int, mesh_id: str) -> np.random.Generator:
     return np.random.default_rng(mesh_stream(seed, mesh_id, EVALUATION_STREAM))
 
 
-def start_views(scene: Scene, mesh_id: str, starts: int, seed: int, generation_runs: int) -> list[int]:
-    """Start 0 in front, then ``starts`` random candidate views from ``evaluation_rng`` (distinct
+def start_views(scene: Scene, mesh_id: str, random_starts: int, seed: int, generation_runs: int) -> list[int]:
+    """Start 0 in front, then ``random_starts`` random candidate views from ``evaluation_rng`` (distinct
     while they last), leaving out the front view and the start views of generation runs
     0..``generation_runs``-1 of this mesh and seed (unless that leaves none)."""
     count, front = len(scene.views), front_view(scene)
     taken = {front} | {start_view(seed, mesh_id, count, run) for run in range(min(generation_runs, count))}
     order = evaluation_rng(seed, mesh_id).permutation(count)
     free = [int(view) for view in order if view not in taken] or [int(view) for view in order]
-    return [front] + [free[k % len(free)] for k in range(starts)]
+    return [front] + [free[k % len(free)] for k in range(random_starts)]
 
 
 def start_floor(scene: Scene, first_view: int, seed: int) -> dict:
@@ -199,9 +200,9 @@ def mesh_cache(scene: Scene, planners: list[Planner]) -> ViewCache | None:
 
 
 def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConfig, scans: int = 10,
-             starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1,
+             random_starts: int = 0, seed: int = 0, progress: bool = False, workers: int = 1,
              floors: bool = True, rerun: Path | None = None) -> EvaluationReport:
-    """Reconstruct every mesh with every planner from 1 + ``starts`` start views (``write_outputs``
+    """Reconstruct every mesh with every planner from 1 + ``random_starts`` start views (``write_outputs``
     then writes the files). ``workers`` > 1 evaluates meshes in that many processes (joblib loky,
     one thread each); the rows are the same, in the same order, as with one. ``floors`` False
     leaves out the set cover of every start (``start_floor``: up to ``oracle.cover_node_limit``
@@ -211,14 +212,14 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
 
     began = time.perf_counter()
     report = EvaluationReport(min_overlap=config.oracle.min_overlap)
-    bar = tqdm(total=len(sources) * len(planners) * (1 + starts), unit="run", desc="evaluate",
+    bar = tqdm(total=len(sources) * len(planners) * (1 + random_starts), unit="run", desc="evaluate",
                disable=not progress, dynamic_ncols=True)
     if rerun is not None:  # recordings a killed evaluation left half-written
         from nbvdata.files import sweep_temporaries
 
         sweep_temporaries(Path(rerun))
     with mesh_runner(workers, bar) as run:
-        results = run(evaluate_mesh, [(source, planners, config, scans, starts, seed, floors, rerun)
+        results = run(evaluate_mesh, [(source, planners, config, scans, random_starts, seed, floors, rerun)
                                       for source in sources])
         for source, (rows, floors, failure, trace) in zip(sources, results):
             report.rows += rows
@@ -233,7 +234,7 @@ def evaluate(sources: list[MeshSource], planners: list[Planner], config: SimConf
     return report
 
 
-def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, starts: int,
+def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig, scans: int, random_starts: int,
                   seed: int, floors: bool = True, rerun: Path | None = None,
                   tick: Callable[[int], None] = lambda runs: None,
                   threads: int = 0) -> tuple[list[dict], list[dict], str | None, str | None]:
@@ -250,15 +251,15 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
         obj = source.load(config.mesh)
         scene = Scene.build(obj, config, scene_rng(seed, source.mesh_id), threads)
     except (MeshError, ValueError, RuntimeError) as error:
-        tick(len(planners) * (1 + starts))
+        tick(len(planners) * (1 + random_starts))
         return [], [], str(error), None
-    firsts = start_views(scene, source.mesh_id, starts, seed, config.episode.runs_per_mesh)
-    floor_rows = [{"mesh": source.stem, "start": number, "start_view": first}
+    firsts = start_views(scene, source.mesh_id, random_starts, seed, config.episode.runs_per_mesh)
+    floor_rows = [{"mesh": source.title, "start": number, "start_view": first}
                   | start_floor(scene, first, run_seed(seed, source.mesh_id, number))
                   for number, first in enumerate(firsts)] if floors else []
     cache = mesh_cache(scene, planners)
     rows = []
-    with recording_of(rerun, source.stem) as recording:
+    with recording_of(rerun, source.title) as recording:
         for index, planner in enumerate(planners):
             for number, first in enumerate(firsts):
                 log = recording.run([planner.name, f"start_{number}"], scene) if recording is not None else None
@@ -272,7 +273,7 @@ def evaluate_mesh(source: MeshSource, planners: list[Planner], config: SimConfig
                     return [], [], (f"planner {planner.name} raised {type(error).__name__} from start view {first}: "
                                     f"{error} (the mesh's rows are left out, so that every planner is compared "
                                     "on the same meshes; tracebacks.txt has where)"), traceback.format_exc()
-                rows += [{"mesh": source.stem, "planner": planner.name, "start": number, "start_view": first} | row
+                rows += [{"mesh": source.title, "planner": planner.name, "start": number, "start_view": first} | row
                          for row in run]
                 tick(1)
     return rows, floor_rows, None, None
@@ -303,7 +304,7 @@ def mesh_runner(workers: int, bar) -> Iterator[Callable]:
     if workers == 1:
         def run(function, calls):
             for arguments in calls:
-                bar.set_postfix_str(arguments[0].stem)
+                bar.set_postfix_str(arguments[0].title)
                 yield function(*arguments, tick=bar.update)
         yield run
         return
@@ -581,7 +582,8 @@ def plot_coverage(rows: list[dict], folder: Path, floors: list[dict] = ()) -> li
         axes.grid(alpha=0.3)
         axes.legend(handles=handles, loc="lower right", fontsize=8)
         figure.tight_layout()
-        path = folder / f"{mesh}.png"
+        path = folder / f"{mesh}.png"  # a mesh named by its path (stems that collide): in its folders
+        path.parent.mkdir(parents=True, exist_ok=True)
         figure.savefig(path, dpi=100)
         plt.close(figure)
         paths.append(path)

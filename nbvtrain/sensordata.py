@@ -21,10 +21,9 @@ what it cannot): (almost) all points must lie in front of the sensor, which many
 (world-to-camera) poses and poses of a body frame with x forward fail; and a pose is refused as
 inverted when its inverse explains the cloud as a range scan and the pose itself does not: seen
 from the inverse, the points lie on a depth image's pixel rays (they share image columns and rows)
-or hide none behind others. ``nbvtrain.plan`` also refuses a cloud that lands in the object's box
-only once moved by its pose (camera-frame points of a sensor looking at the object lie in front
-of it too).
-"""
+or hide none behind others. ``nbvtrain.plan`` first refuses a cloud that lands in the object's box
+only once moved by its pose or by the pose's inverse (camera-frame points of a sensor looking at
+the object, which the pose checks would misread, e.g. as an inverted pose)."""
 
 from __future__ import annotations
 
@@ -234,9 +233,11 @@ def _read_pcd_compressed(path: Path, points: int) -> np.ndarray:
 # Scans files
 
 
-def read_scans(path: str | Path) -> list[SensorScan]:
+def read_scans(path: str | Path, check_poses: bool = True) -> list[SensorScan]:
     """The scans a scans file lists (see the module docstring), each checked; SensorDataError
-    naming the file, the scan and the fix for anything unusable."""
+    naming the file, the scan and the fix for anything unusable. ``check_poses=False`` leaves out
+    ``check_pose`` (every pose is still read and checked rigid), for a caller that runs it after
+    checks of its own (``nbvtrain.plan`` first looks for camera-frame clouds)."""
     path = Path(path)
     if not path.is_file():
         raise SensorDataError(f"{path}: no such scans file: check the --scans path")
@@ -247,10 +248,10 @@ def read_scans(path: str | Path) -> list[SensorScan]:
     if not isinstance(entries, list) or not entries:
         raise SensorDataError(f"{path}: a scans file is a non-empty YAML list of scans, each "
                               "{cloud: PATH, pose: 4x4} or {cloud: PATH, position: [x, y, z], quaternion_xyzw: [...]}")
-    return [_read_scan(entry, path, number) for number, entry in enumerate(entries, start=1)]
+    return [_read_scan(entry, path, number, check_poses) for number, entry in enumerate(entries, start=1)]
 
 
-def _read_scan(entry: object, path: Path, number: int) -> SensorScan:
+def _read_scan(entry: object, path: Path, number: int, check_poses: bool) -> SensorScan:
     where = f"{path}: scan {number}"
     if not isinstance(entry, dict):
         raise SensorDataError(f"{where} is {str(entry)[:40]!r}, not a mapping: {{cloud: PATH, pose: 4x4 matrix}}")
@@ -268,7 +269,8 @@ def _read_scan(entry: object, path: Path, number: int) -> SensorScan:
     except SensorDataError as error:
         raise SensorDataError(f"{where}: {error}") from None
     scan = SensorScan(points, matrix, f"{where} ({entry['cloud']})")
-    check_pose(scan)
+    if check_poses:
+        check_pose(scan)
     return scan
 
 

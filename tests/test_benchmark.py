@@ -256,3 +256,67 @@ def test_a_bad_travel_weight_is_one_line(small_protocol, corpus, tmp_path, capsy
     assert _run(small_protocol, corpus, tmp_path / "out", "--travel-weight", weight) == 2
     err = capsys.readouterr().err.strip()
     assert "--travel-weight" in err and len(err.splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def _synthetic(objects: int, starts: int = 1) -> tuple:
+    """A report of ``objects`` objects without simulating them: oracle 5 and scores 1 AUC points above
+    farthest on every object (so every interval excludes 0), a 6-scan budget, farthest missing 95 %
+    on the first object and every planner 99 % everywhere. (report, per-object rows)"""
+    from nbvtrain.benchmark import RUN_METRICS, BenchmarkReport
+    from nbvtrain.benchmark_report import per_object
+
+    rng = np.random.default_rng(0)
+    report = BenchmarkReport(Protocol(name="t", budgets={"6 scans": 6}), ["oracle", "scores", "farthest"])
+    for mesh in range(objects):
+        base = rng.uniform(0.6, 0.8)
+        for planner, ahead in zip(report.planners, (0.05, 0.01, 0.0)):
+            for start in range(starts):
+                report.runs.append({"budget": "6 scans", "mesh": f"m{mesh}", "planner": planner, "start": start,
+                                    "start_view": 0} | {m: base + ahead + rng.normal(0, 0.002) for m in RUN_METRICS}
+                                   | {"scans_to_90": 3, "scans_to_95": None if (planner, mesh) == ("farthest", 0)
+                                      else 5, "scans_to_99": None})
+    return report, per_object(report)
+
+
+def test_few_objects_give_figures_without_a_verdict_and_every_table_states_n():
+    """Two objects: intervals that exclude 0 are given, but no difference is called separable and no
+    planner ahead, and the top of benchmark.md says why; 30 objects decide."""
+    from nbvtrain.benchmark_report import summary_markdown
+    from nbvtrain.statistics import MIN_OBJECTS
+
+    report, rows = _synthetic(2)
+    md = summary_markdown(report, rows, "farthest", 0)
+    top, body = md.split("## 6 scans")
+    assert f"No verdicts: 2 objects, fewer than {MIN_OBJECTS}" in top
+    assert ", yes |" not in body and ", no verdict |" in body
+    assert "ahead of" not in body and "not separable" not in body and "(no verdict on 2 objects)" in body
+    assert "| planner (n = 2 objects) |" in body and "| planner | n |" in body and "| scores | 2 |" in body
+    assert "paired over the n = 2 objects" in body
+    report, rows = _synthetic(MIN_OBJECTS + 10)
+    md = summary_markdown(report, rows, "farthest", 0)
+    assert "No verdicts" not in md and ", yes |" in md and "`scores` " in md and "ahead of farthest" in md
+
+
+def test_benchmark_md_says_what_not_reached_counts_as_and_its_units():
+    from nbvtrain.benchmark_report import summary_markdown
+
+    report, rows = _synthetic(2)
+    md = summary_markdown(report, rows, "farthest", 0)
+    assert md.startswith("# Benchmark: protocol t, 2 objects, 1 start each")  # not "1 starts"
+    assert "counts as the budget plus one (7 for these 6 scans)" in md
+    farthest = next(line for line in md.splitlines() if line.startswith("| farthest |"))
+    assert "6.00 [5.00, 7.00], 1/2 n.r." in farthest and "7.00 [7.00, 7.00], 2/2 n.r." in farthest
+    assert "Chamfer (x1e-3 r^2) the Chamfer distance" in md and "in thousandths of r squared" in md
+
+
+def test_benchmark_tells_meshes_of_one_file_name_apart_and_starts_counts_every_start(small_protocol, tmp_path):
+    corpus = tmp_path / "corpus"
+    for shape, model in (("mug", "02/aa/models"), ("ring", "02/bb/models")):
+        (corpus / model).mkdir(parents=True)
+        BUILTIN_SHAPES[shape]().export(corpus / model / "model_normalized.obj")
+    assert main(["benchmark", "--protocol", str(small_protocol), "--meshes", str(corpus), "--planners", "farthest",
+                 "--starts", "1", "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "runs.csv")))
+    assert {row["mesh"] for row in rows} == {"02/aa/models/model_normalized.obj", "02/bb/models/model_normalized.obj"}
+    assert {row["start"] for row in rows} == {"0"}  # --starts 1: one start, the front one not added
+    assert "2 objects, 1 start each" in (tmp_path / "out" / "benchmark.md").read_text()

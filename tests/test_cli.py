@@ -19,6 +19,30 @@ def test_demo_writes_a_png(tmp_path, capsys, monkeypatch):
     assert len(drawn["scanned"]) == 2 and drawn.get("highlight") is None  # scans green; red is the next view only
 
 
+def test_picture_titles_say_of_which_surface_the_coverage_is(tmp_path, capsys, monkeypatch):
+    """Issue 58: a title's coverage is of the whole surface or of its observable part, and says so:
+    demo's of both (the figures of its last scan's line), a shard sample's of the observable (the
+    shard's coverage and gains)."""
+    from pathlib import Path
+
+    import nbvdata.render
+
+    titles = []
+    render_state = nbvdata.render.render_state
+    monkeypatch.setattr(nbvdata.render, "render_state", lambda *a, **k: titles.append(k["title"]) or
+                        render_state(*a, **k))
+    smoke = str(Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml")
+    assert main(["demo", "--shape", "mug", "--scans", "2", "--config", smoke, "--out", str(tmp_path / "d.png")]) == 0
+    last = capsys.readouterr().out.splitlines()[-2].split()  # scan 2: ... coverage T% observable O% ...
+    total, observable = last[last.index("coverage") + 1], last[last.index("observable") + 1]
+    assert titles[-1].endswith(f"2 scans, coverage {total} of the whole surface, {observable} of the observable")
+    assert main(["generate", "--config", smoke, "--runs-per-mesh", "1", "--out", str(tmp_path / "s"),
+                 "--no-progress"]) == 0
+    shard = sorted((tmp_path / "s").glob("*.h5"))[0]
+    assert main(["show", str(shard), "--index", "1", "--out", str(tmp_path / "s.png")]) == 0
+    assert "% of the observable surface, overlap " in titles[-1] and ", observable coverage " in titles[-1]
+
+
 def _grid(seed: int = 0) -> np.ndarray:
     grid = np.full(32 ** 3, 0.5, dtype=np.float32)
     grid[:1000] = 0.4
@@ -102,7 +126,7 @@ def _legend_of_show(argv, monkeypatch) -> list[str]:
 def test_show_marks_the_views_scanned_and_the_highlighted_one(tmp_path, monkeypatch):
     texts = _legend_of_show(["--views", "3,41", "--highlight", "20", "--set", "views.count=50",
                              "--out", str(tmp_path / "s.png")], monkeypatch)
-    assert "scanned views (2)" in texts and "--highlight view (view 20)" in texts, texts
+    assert "scanned views (2, numbered in scan order)" in texts and "--highlight view (view 20)" in texts, texts
     assert "candidate views (50)" in texts
 
 
@@ -115,7 +139,7 @@ def test_show_of_a_shard_sample_draws_the_views_its_run_scanned(tmp_path, monkey
     with Shard(shard) as opened:
         index = int(np.flatnonzero(opened["step"] == 3)[0])
     texts = _legend_of_show([str(shard), "--index", str(index), "--out", str(tmp_path / "s.png")], monkeypatch)
-    assert "scanned by this state (3)" in texts and "runner-up candidates" in texts, texts
+    assert "scanned by this state (3, numbered in scan order)" in texts and "runner-up candidates" in texts, texts
 
 
 def test_a_highlight_out_of_range_names_highlight(tmp_path, capsys):
@@ -145,7 +169,9 @@ def test_inspect_reports_unreadable_shards_before_printing_anything(tmp_path, ca
     assert main(["inspect", str(tmp_path / "bad.h5")]) == 2
     printed = capsys.readouterr()
     assert printed.out == ""  # no empty table
-    assert printed.err.startswith(f"nbvdata inspect: error: {tmp_path / 'bad.h5'}: not a readable HDF5 file")
+    assert printed.err.startswith(f"nbvdata inspect: error: {tmp_path / 'bad.h5'}: not an HDF5 file (a text file), "
+                                  "so not a shard")
+    assert "delete" not in printed.err  # no shard, so none to delete and regenerate
     assert len(printed.err.splitlines()) == 1
     assert main(["inspect", str(tmp_path)]) == 2
     printed = capsys.readouterr()

@@ -238,3 +238,16 @@ def test_a_resumed_generate_redoes_a_shard_that_fails_its_checks(tmp_path, capsy
     printed = capsys.readouterr().out
     assert f"redoing {first.name}" in printed and f"redoing {second.name}" in printed
     assert {path.name: path.read_bytes() for path in (first, second)} == before
+
+
+def test_plain_inspect_says_it_did_not_read_the_grids_and_names_verify(shards, capsys):
+    """Issue 58: plain inspect of a shard with damaged grids printed normal statistics and exit 0
+    as if the shards were fine. It still reads only the labels (a fraction of the time), and says
+    so, naming the command that reads every byte, which then names the damaged shard."""
+    folder, victim = shards
+    assert nbvdata(["inspect", str(folder)]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last == (f"checked: only the labels counted above, not the grids (--by-step reads those too); "
+                    f"nbvdata verify {folder} reads every shard whole")
+    assert nbvdata(["verify", str(folder)]) == 1
+    assert f"{victim}: damaged, dataset grids cannot be read" in capsys.readouterr().out

@@ -259,6 +259,23 @@ def test_inspect_and_show_read_generated_shards(tmp_path, capsys):
     assert shard.name in printed.err and not printed.out  # no table of the other shards first
 
 
+def test_inspect_tells_meshes_of_one_file_name_apart(tmp_path, capsys):
+    """ShapeNet's CAT/ID/models/model_normalized.obj: one line per mesh, each with its id's first 12
+    hex digits, as in its shards' names."""
+    meshes = tmp_path / "meshes"
+    for extents, model in (((1, 2, 3), "02/aa/models"), ((3, 1, 1), "02/bb/models")):
+        (meshes / model).mkdir(parents=True)
+        trimesh.creation.box(extents=extents).export(meshes / model / "model_normalized.obj")
+    out = tmp_path / "out"
+    assert main(["generate", "--meshes", str(meshes), "--out", str(out), "--config", str(SMOKE), "--set",
+                 "episode.runs_per_mesh=1", "--workers", "1", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("model_normalized.obj")]
+    ids = sorted(path.name.split("-")[1] for path in out.glob("*.h5"))
+    assert len(lines) == 2 and sorted(line.split("(")[1].split(")")[0] for line in lines) == ids
+
+
 def test_mesh_lists_resolve_relative_to_the_list(tmp_path):
     meshes = tmp_path / "meshes"
     _write_meshes(meshes)

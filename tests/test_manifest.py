@@ -336,6 +336,24 @@ def test_licenses_come_from_the_meshes_table_and_few_meshes_have_no_mesh_split(t
     assert "| box.stl |" in card and "CC0, made by the test" in card and "--meshes MESH_DIR" in card
 
 
+def test_publish_with_meshes_but_no_table_says_the_table_is_missing_and_its_columns(tmp_path, capsys):
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.creation.box(extents=(1, 2, 3)).export(meshes / "box.stl")
+    sources, _ = mesh_sources(meshes)
+    assert not generate(sources, tmp_path / "shards", _smoke("episode.runs_per_mesh=1")).failures
+    args = ["publish", str(tmp_path / "shards"), "--name", "files", "--manifests", str(tmp_path / "manifests"),
+            "--meshes", str(meshes)]
+    assert nbvdata([*args, "--version", "1.0.0"]) == 0
+    warning = capsys.readouterr().err.strip()
+    assert f"--meshes {meshes} has no MESHES.tsv in it or below" in warning and "box.stl" in warning
+    assert "columns file and license_or_origin" in warning and "pass --meshes" not in warning
+    assert len(warning.splitlines()) == 1
+    (meshes / "MESHES.tsv").write_text("file\tlicense_or_origin\nother.stl\tCC0\n")
+    assert nbvdata([*args, "--version", "1.0.1"]) == 0
+    assert f"add their rows to a MESHES.tsv in or below --meshes {meshes}" in capsys.readouterr().err
+
+
 def test_imported_shards_publish_with_the_random_split_only(tmp_path, rng, capsys):
     grids = np.full((6, 32 ** 3), 0.5)
     for row in range(6):

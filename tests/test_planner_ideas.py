@@ -251,7 +251,7 @@ def test_evaluate_runs_the_ideas_side_by_side(scene, checkpoints, tmp_path, caps
     out = tmp_path / "eval"
     ensemble = f"{checkpoints['score-a']},{checkpoints['score-b']}"
     assert main(["evaluate", "--meshes", str(mug), "--planners", "scores,hybrid", "--score-checkpoint", ensemble,
-                 "--tta", "--hybrid-weight", "0,2.5", "--scans", "5", "--starts", "1", "--config", str(SMOKE),
+                 "--tta", "--hybrid-weight", "0,2.5", "--scans", "5", "--random-starts", "1", "--config", str(SMOKE),
                  "--out", str(out), "--no-progress"]) == 0
     with open(out / "coverage.csv") as handle:
         rows = list(csv.DictReader(handle))

@@ -137,3 +137,36 @@ def test_plan_refuses_an_inverted_pose_in_one_line(tmp_path, capsys):
     assert "np.linalg.inv" in err
     (tmp_path / "scans.yaml").write_text(yaml.safe_dump(entries))
     assert main(argv) == 0 and json.loads(capsys.readouterr().out)["position"]
+
+
+def test_a_camera_frame_cloud_is_named_as_such_whichever_way_round_its_pose_is(tmp_path, capsys):
+    """A depth image's points in the camera frame, R.T @ (p - t), with the right camera-to-world
+    pose (R, t) of a robot's scene (issue 58): the pose checks took some of them for an inverted
+    pose, and with that pose inverted they ended in "no occupied voxel in the object box". From
+    every view, either way round, the message names camera-frame points and the fix for that pose;
+    the same clouds in the world frame, with the pose or its inverse, are not taken for them."""
+    from nbvtrain.cli import main
+    from nbvtrain.plan import check_world_frame, object_frame
+    from nbvtrain.sensordata import SensorScan
+
+    config = SimConfig()
+    k = 0.34 / config.mesh.object_size  # the object's largest side 0.34 m: views 1 m away
+    robot = TABLE.copy()
+    robot[:3, 3] = [0.62, -0.10, 0.78]
+    frame = object_frame(robot[:3, 3], 0.34, "z", config)
+    argv = ["plan", "--scans", str(tmp_path / "scans.yaml"), "--center", "0.62,-0.10,0.78", "--size", "0.34"]
+    messages = []
+    for number, (scan, matrix) in enumerate(_scans("mug")):
+        matrix[:3, 3] *= k
+        pose = robot @ matrix
+        world = _move(scan.hit_points.astype(np.float64) * k, robot)
+        np.save(tmp_path / f"c{number}.npy", ((world - pose[:3, 3]) @ pose[:3, :3]).astype(np.float32))
+        for given, fix in ((pose, "the pose stays as it is"), (np.linalg.inv(pose), "P = np.linalg.inv(pose)")):
+            (tmp_path / "scans.yaml").write_text(yaml.safe_dump([{"cloud": f"c{number}.npy", "pose": given.tolist()}]))
+            assert main(argv) == 2
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+            messages.append((f"scan 1 (c{number}.npy): the cloud looks like camera-frame points", fix, err))
+            check_world_frame(SensorScan(world, given, "world-frame"), frame, config)  # no PlanError
+    assert [err for cause, _, err in messages if cause not in err] == []
+    assert [err for _, fix, err in messages if fix not in err] == []

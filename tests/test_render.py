@@ -66,6 +66,14 @@ def test_the_legend_names_every_colour_and_arrow():
     assert len(texts) == 6 and not any("view (" in text for text in texts)  # no arrows, no arrow entries
 
 
+def _dots(fig) -> np.ndarray:
+    """(D, 3) every dot drawn (the candidate views, in front of the grid's centre and behind it)."""
+    from mpl_toolkits.mplot3d.art3d import Path3DCollection
+
+    return np.concatenate([np.stack(c._offsets3d, axis=1) for c in fig.axes[0].collections
+                           if isinstance(c, Path3DCollection)])
+
+
 def _arrow_colours(fig) -> list[tuple]:
     """The RGB of every arrow (quiver) drawn, the orientation triad's included."""
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
@@ -88,8 +96,8 @@ def test_one_colour_one_meaning_in_every_picture():
     plt.close(fig)
     rgb = lambda colour: tuple(np.round(to_rgb(colour), 3))  # noqa: E731
     assert colours.count(rgb(SCANNED)) == 3 and colours.count(rgb(RUNNER_UP)) == 2 and colours.count(rgb(NEXT)) == 1
-    assert colours.count(rgb(AXES_COLOUR)) == 3 and labels == ["x", "y", "z"]
-    assert "scanned views (3)" in texts and "runner-up candidates" in texts and "next-best-view (view 3)" in texts
+    assert colours.count(rgb(AXES_COLOUR)) == 3 and labels == ["1", "2", "3", "x", "y", "z"]
+    assert "scanned views (3, numbered in scan order)" in texts and "runner-up candidates" in texts and "next-best-view (view 3)" in texts
 
 
 def test_the_views_are_drawn_nearer_so_the_object_fills_the_picture():
@@ -99,13 +107,14 @@ def test_the_views_are_drawn_nearer_so_the_object_fills_the_picture():
 
     views = view_sphere(ViewConfig(count=40))
     fig = draw_state(_grid(), 0.15, views)
-    dots, texts = fig.axes[0].collections[1]._offsets3d, _legend(fig)
+    dots, texts = _dots(fig), _legend(fig)
     low, high = fig.axes[0].get_xlim()
     plt.close(fig)
-    drawn = np.stack(dots, axis=1) - 8  # the 16-voxel grid's centre
+    drawn = dots - 8  # the 16-voxel grid's centre
     assert np.allclose(np.linalg.norm(drawn, axis=1), DRAWN_RADIUS * 16)
     unit = views.positions / np.linalg.norm(views.positions, axis=1, keepdims=True)
-    assert np.allclose(drawn / np.linalg.norm(drawn, axis=1, keepdims=True), unit)
+    rows = lambda array: np.array(sorted(map(tuple, np.round(array, 6))))  # noqa: E731  (behind, then in front)
+    assert np.allclose(rows(drawn / np.linalg.norm(drawn, axis=1, keepdims=True)), rows(unit))
     shown = round(100 * DRAWN_RADIUS * 16 / (0.4 * 16 / 0.15))
     assert (high - low) <= 2 * DRAWN_RADIUS * 16 + 1e-9
     assert f"views drawn at {shown}% of their distance (directions exact)" in texts
@@ -145,7 +154,7 @@ def test_views_beyond_the_candidates_are_arrows_only():
     fig = draw_state(_grid(), 0.3, views, highlight=39, others=[37, 38], labels=("next-best-view", "scans (2)"),
                      candidates=37)
     texts = _legend(fig)
-    dots = fig.axes[0].collections[1].get_offsets()
+    dots = _dots(fig)
     plt.close(fig)
     assert "candidate views (37)" in texts and "next-best-view" in texts and "scans (2)" in texts
     assert len(dots) == 37
@@ -171,3 +180,63 @@ def test_tighten_keeps_the_drawing_whole_and_cuts_the_rest():
     assert tight.shape[:2] == (3 + 3 + 3 + 3 + 30 + 3 + 3 + 5 + 3, 3 + 40 + 3)
     ink = np.flatnonzero((tight[..., :3] < 250).any(axis=2).any(axis=1))
     assert ink.tolist() == [3, 4, 5, *range(12, 17), *range(32, 42), *range(48, 53)]  # the gap 17..31 kept
+
+
+def _green_pixels(path) -> int:
+    """Pixels of the scanned views' green (arrows and numbers) in a PNG, above its legend (the
+    lowest 15 % of its rows)."""
+    from matplotlib.colors import to_rgb
+
+    from nbvdata.render import SCANNED
+
+    pixels = imread(path)[..., :3]
+    drawing = pixels[:int(0.85 * len(pixels))]
+    return int((np.abs(drawing - np.array(to_rgb(SCANNED))) < 0.12).all(axis=2).sum())
+
+
+@pytest.mark.parametrize("side, angle", [("behind", 20), ("in front", 20), ("in front", 50)])
+def test_the_object_hides_a_view_behind_it_and_none_in_front(side, angle, tmp_path):
+    """Issue 58: the draw order of the arrows and the voxels was matplotlib's, one depth per
+    collection, so an arrow could be hidden by voxels behind it or drawn over voxels in front of it.
+    A solid block filling the grid, one scanned view ``angle`` degrees off the line of sight, its
+    arrow and number over the block in the picture: behind the block none of its green shows; in
+    front all of it does, as over an empty grid."""
+    from nbvdata.render import VIEW
+    from nbvdata.views import ViewSet, look_at_rotations
+
+    elev, azim = np.radians(VIEW["elev"]), np.radians(VIEW["azim"])
+    eye = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])  # to the viewer
+    across = np.cross(eye, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    direction = (-1 if side == "behind" else 1) * np.cos(np.radians(angle)) * eye + np.sin(np.radians(angle)) * across
+    views = ViewSet(0.4 * direction[None], look_at_rotations(0.4 * direction[None]))
+    green = {}
+    for name, value in (("solid", 0.7), ("empty", 0.4)):
+        grid = np.full((16, 16, 16), value, dtype=np.float32)
+        green[name] = _green_pixels(render_state(grid, 0.3, tmp_path / f"{name}.png", views, scanned=[0]))
+    assert green["empty"] > 100, green
+    if side == "behind":
+        assert green["solid"] == 0, green
+    else:
+        assert green["solid"] >= 0.95 * green["empty"], green
+
+
+def test_the_scanned_views_are_numbered_in_scan_order():
+    """Issue 58: the picture did not say which scan came first. Each scanned view's arrow carries
+    its place in the scan order, just beyond its tail; the legend says so, and a highlighted view
+    that was scanned names its scan."""
+    views = view_sphere(ViewConfig(count=40))
+    scanned = [17, 3, 30]
+    fig = draw_state(_grid(), 0.3, views, highlight=30, scanned=scanned)
+    numbers = {text.get_text(): np.array(text.get_position_3d()) for text in fig.axes[0].texts
+               if text.get_text().isdigit()}
+    texts = _legend(fig)
+    plt.close(fig)
+    assert sorted(numbers) == ["1", "2", "3"]
+    shrink = 1.2 * 16 / (0.4 * 16 / 0.3)  # the views drawn nearer (DRAWN_RADIUS)
+    for number, view in enumerate(scanned, start=1):
+        drawn = views.positions[view] * shrink * 16 / 0.3 + 8  # grid units
+        beyond = numbers[str(number)] - 8
+        assert np.allclose(beyond / np.linalg.norm(beyond), (drawn - 8) / np.linalg.norm(drawn - 8))
+        assert np.linalg.norm(beyond) == pytest.approx(1.08 * np.linalg.norm(drawn - 8))
+    assert "scanned views (3, numbered in scan order)" in texts and "next-best-view (view 30, scan 3)" in texts

@@ -156,7 +156,7 @@ def test_evaluate_records_every_planner_side_by_side(tmp_path, capsys):
     meshes.mkdir()
     for name in ("mug", "ring"):
         BUILTIN_SHAPES[name]().export(meshes / f"{name}.obj")
-    argv = ["evaluate", "--meshes", str(meshes), "--planners", "oracle,random", "--scans", "3", "--starts", "1",
+    argv = ["evaluate", "--meshes", str(meshes), "--planners", "oracle,random", "--scans", "3", "--random-starts", "1",
             "--no-floors", "--config", str(SMOKE), "--no-progress"]
     assert nbvtrain_main([*argv, "--out", str(tmp_path / "plain")]) == 0
     assert nbvtrain_main([*argv, "--out", str(tmp_path / "recorded"), "--rerun", str(tmp_path / "rrd")]) == 0

@@ -206,3 +206,37 @@ def test_without_the_rl_extra_the_example_says_the_install_in_one_line():
     assert done.returncode == 1 and done.stdout == ""
     assert done.stderr.strip().splitlines() == ['examples/rl_sb3.py needs sb3-contrib and stable-baselines3: '
                                                'pip install -e ".[rl]"'], done.stderr
+
+
+def test_the_example_runs_from_a_clone_on_the_built_in_shapes(tmp_path):
+    """Issue 58: from a clone (no ../shared/meshes) the example stopped with a ManifestError
+    traceback, with the built-in shapes' manifest with a TypeError, and its --help mid-sentence.
+    From a copy of a clone's files: the default says in one line what it needs and how to run on the
+    built-in shapes; that runs the whole recipe in a small budget and saves the chosen actor."""
+    import shutil
+    import subprocess
+    import sys
+
+    clone = tmp_path / "clone" / "nbv-regression"  # no ../shared beside it
+    for name in ("examples/rl_sb3.py", "manifests/train-meshes-1.2.0.json", "manifests/builtin-shapes-1.3.0.json"):
+        (clone / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / name, clone / name)
+
+    def run(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "examples/rl_sb3.py", *argv], capture_output=True, text=True,
+                              timeout=600, cwd=clone)
+
+    shown = run("--help")
+    assert shown.returncode == 0 and "then MaskablePPO (sb3-contrib) on" in " ".join(shown.stdout.split())
+    refused = run()
+    assert refused.returncode == 1 and refused.stdout == ""
+    assert len(refused.stderr.strip().splitlines()) == 1 and "Traceback" not in refused.stderr, refused.stderr
+    assert "../shared/meshes" in refused.stderr and "--manifest manifests/builtin-shapes-1.3.0.json" in refused.stderr
+    done = run("--manifest", "manifests/builtin-shapes-1.3.0.json", "--minutes", "0.3", "--episodes", "2",
+               "--dagger-rounds", "1", "--gammas", "0.5", "--val-starts", "1", "--out", str(tmp_path / "rl"))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("4 training meshes, 1 validation mesh x 1 start; ")
+    with open(tmp_path / "rl" / "curve.csv") as handle:
+        stages = {row["stage"] for row in csv.DictReader(handle)}
+    assert {"start", "clone", "dagger1", "ppo-g0.5"} <= stages
+    rl.load_actor(tmp_path / "rl" / "actor.pt")

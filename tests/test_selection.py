@@ -180,11 +180,11 @@ def _evaluation(folder: Path, finals: dict[str, float], checkpoint: str) -> Path
 
 
 def test_the_selection_table_ranks_by_the_shared_meshes_and_says_when_a_run_stopped_improving(tmp_path):
-    """benchmarks/selection_table.py, which the recipe's convergence rule and choices read."""
+    """recipes/selection_table.py, which the recipe's convergence rule and choices read."""
     import subprocess
     import sys
 
-    script = ROOT / "benchmarks" / "selection_table.py"
+    script = ROOT / "recipes" / "selection_table.py"
     shared = {2: 0.80, 4: 0.90, 6: 0.85, 8: 0.88}  # epoch -> shared-mesh coverage; procedural falls as shared rises
     folders = [_evaluation(tmp_path / f"net-e{epoch:03d}", {"cup": value, "random_007": 1.5 - value},
                            f"epoch-{epoch}.pt") for epoch, value in shared.items()]
@@ -262,8 +262,8 @@ def test_a_dagger_round_of_the_training_part_fine_tunes_and_never_touches_valida
     card = (tmp_path / "elsewhere" / "MODEL_CARD.md").read_text()
     assert "the chain in all: at least 2 epochs (a run of the chain is not on this machine" in card
     (tuned / "data.json").write_text(json.dumps({**data, "init": old}))  # ... of a file still here
-    # benchmarks/regression_answers.py --shards: the policy's own states, its poses as their nearest views
-    answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(first),
+    # recipes/regression_answers.py --shards: the policy's own states, its poses as their nearest views
+    answers = subprocess.run([sys.executable, str(ROOT / "recipes" / "regression_answers.py"), str(first),
                               str(first / "best.pt"), "--shards", str(dagger), "--samples", "5"],
                              capture_output=True, text=True, check=True).stdout.splitlines()
     assert answers[0].startswith(f"5 states of {dagger}") and answers[3].split()[-3] == "1.000"  # labels: the best

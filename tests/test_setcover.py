@@ -336,10 +336,13 @@ def test_scvp_export_reads_back_as_their_loader_reads_it(tmp_path):
 
 
 @pytest.mark.parametrize("overrides, message", [
-    ([], "no set-cover labels; generate with --set oracle.cover=true"),
-    (["oracle.cover=true"], "SCVP's format has their 32: generate with --set views.layout=scvp-32"),
+    ([], "no set-cover labels, 60 candidate views (SCVP's format has their 32); generate with --set "
+         "oracle.cover=true --set views.layout=scvp-32 --set views.count=32 to export --format scvp"),
+    (["oracle.cover=true"], ": 60 candidate views (SCVP's format has their 32); generate with --set "
+                            "views.layout=scvp-32 --set views.count=32 to export"),
 ])
 def test_scvp_export_refuses_shards_it_cannot_hold_in_one_line(tmp_path, capsys, overrides, message):
+    """Every setting the shards lack is in the first message (each one found later cost a regeneration)."""
     config = load_config(SimConfig, SMOKE, [*overrides, "generate.workers=1", "episode.runs_per_mesh=1"])
     generate(builtin_sources()[:1], tmp_path / "shards", config)
     assert main(["export", str(tmp_path / "shards"), "--format", "scvp", "--out", str(tmp_path / "out")]) == 2
@@ -384,7 +387,7 @@ def test_setcover_planner_reaches_everything_in_exactly_the_floors_scans(tmp_pat
     config = load_config(SimConfig, SMOKE, ["views.count=24"])
     source = builtin_sources()[0]
     planners, _ = build_planners(["oracle", "setcover"], config, view_sphere(config.views), {})
-    report = evaluate([source], planners, config, scans=26, starts=1)
+    report = evaluate([source], planners, config, scans=26, random_starts=1)
     (floor_0, floor_1) = report.floors
     reached = scans_to(report.rows, (1.0,))
     for start, floor in enumerate((floor_0, floor_1)):
@@ -402,8 +405,8 @@ def test_evaluating_without_floors_leaves_them_out_and_changes_no_row():
     config = load_config(SimConfig, SMOKE, [])
     source = builtin_sources()[0]
     planners, _ = build_planners(["oracle", "random"], config, view_sphere(config.views), {})
-    with_floors = evaluate([source], planners, config, scans=4, starts=1)
-    without = evaluate([source], planners, config, scans=4, starts=1, floors=False)
+    with_floors = evaluate([source], planners, config, scans=4, random_starts=1)
+    without = evaluate([source], planners, config, scans=4, random_starts=1, floors=False)
     assert len(with_floors.floors) == 2 and without.floors == []
     drop = lambda rows: [{k: v for k, v in row.items() if k != "seconds"} for row in rows]  # noqa: E731
     assert drop(without.rows) == drop(with_floors.rows)

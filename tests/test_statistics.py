@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nbvtrain.statistics import bootstrap_interval, compare, ranking, tertiles
+from nbvtrain.statistics import MIN_OBJECTS, bootstrap_interval, compare, ranking, tertiles
 
 
 def test_a_constant_difference_has_a_zero_width_interval_and_wins_everywhere():
@@ -50,6 +50,28 @@ def test_the_ranking_says_where_neighbours_cannot_be_told_apart():
     rows = ranking(values, seed=0)
     assert [row[0] for row in rows][2] == "c"
     assert "not separable from" in rows[0][2] and rows[1][2].startswith("ahead of c")
+
+
+def test_min_objects_is_where_the_interval_nears_its_level():
+    """Why MIN_OBJECTS: on 2 objects a 95 % interval holds the true mean about half the time, on
+    MIN_OBJECTS within a few points of 95 % (300 draws from N(0.5, 1))."""
+    rng = np.random.default_rng(5)
+
+    def held(n):
+        return np.mean([low <= 0.5 <= high for low, high in
+                        (bootstrap_interval(rng.normal(0.5, 1.0, n), seed, resamples=2000) for seed in range(300))])
+
+    assert held(2) < 0.7 and 0.88 <= held(MIN_OBJECTS) <= 0.99
+
+
+def test_below_min_objects_nothing_is_decided():
+    few = {"a": np.array([0.9, 0.8]), "b": np.array([0.5, 0.4])}
+    a, _ = compare(few, "b", seed=0)
+    assert a.separable and not a.decided  # the interval excludes 0, on too few objects to say so
+    (first, _, verdict), _ = ranking(few, seed=0)
+    assert first == "a" and "ahead of" not in verdict and verdict.endswith("against b (no verdict on 2 objects)")
+    many = {name: np.tile(values, MIN_OBJECTS // 2) for name, values in few.items()}
+    assert compare(many, "b", seed=0)[0].decided and ranking(many, seed=0)[0][2].startswith("ahead of b")
 
 
 def test_tertiles_split_by_value():

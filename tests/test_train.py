@@ -98,7 +98,7 @@ def test_bad_input_leaves_no_run_folder_behind(shards, tmp_path, capsys):
     (bad / "junk.h5").write_bytes(b"not an HDF5 file" * 100)
     run = tmp_path / "run"
     assert main(["fit", str(bad), "--epochs", "1", "--out", str(run), *FAST]) == 2
-    assert "junk.h5: not a readable HDF5 file" in capsys.readouterr().err
+    assert "junk.h5: not an HDF5 file (a text file), so not a shard" in capsys.readouterr().err
     assert not run.exists()
     if not torch.cuda.is_available():
         assert main(["fit", str(shards), "--device", "cuda", "--epochs", "1", "--out", str(run), *FAST]) == 2
@@ -436,8 +436,8 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
     # the near-best validation loss is at most the label's squared error for the same output
     history = checkpoint["history"]
     assert all(row["val_loss"] <= row["val_mse"] + 1e-9 for row in history)
-    # benchmarks/regression_answers.py reads the run's validation states and compares the two losses
-    answers = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "regression_answers.py"), str(straight),
+    # recipes/regression_answers.py reads the run's validation states and compares the two losses
+    answers = subprocess.run([sys.executable, str(ROOT / "recipes" / "regression_answers.py"), str(straight),
                               str(straight / "best.pt"), str(label / "best.pt"), "--samples", "10"],
                              capture_output=True, text=True, check=True).stdout.splitlines()
     assert answers[0].startswith("10 validation states of") and len(answers) == 6

@@ -19,7 +19,7 @@ states of DIR instead of the run's validation states: e.g. a policy's own rollou
 objects (``nbvdata generate --manifest M --part val --policy CKPT``), where a state reached through
 a pose counts that scan as its nearest candidate view (``nbvtrain.training_data.nearest_views``).
 
-    python benchmarks/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0] [--shards DIR]
+    python recipes/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0] [--shards DIR]
 """
 
 from __future__ import annotations

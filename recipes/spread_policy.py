@@ -1,5 +1,5 @@
 """Policies that spread the views away from those already scanned, for ``nbvtrain evaluate
---planners benchmarks/spread_policy.py:NAME`` (issue 27: can the view state lift the regression
+--planners recipes/spread_policy.py:NAME`` (issue 27: can the view state lift the regression
 network above a random view?).
 
 - ``farthest``: no network - the unscanned candidate view farthest (in angle) from every

@@ -1,10 +1,10 @@
-"""Validation-object means of ``nbvtrain evaluate`` folders, for issue 27's selection (benchmarks/selection.sh).
+"""Validation-object means of ``nbvtrain evaluate`` folders, for issue 27's selection (recipes/selection.sh).
 
-    python benchmarks/selection_table.py runs/selection/val/*          # one row per folder and planner
-    python benchmarks/selection_table.py --top 3 runs/selection/val/scores-3-e*   # the 3 best rows' checkpoints
-    python benchmarks/selection_table.py --stopped 3 runs/selection/val/scores-3-e*  # exit 0 once the
+    python recipes/selection_table.py runs/selection/val/*          # one row per folder and planner
+    python recipes/selection_table.py --top 3 runs/selection/val/scores-3-e*   # the 3 best rows' checkpoints
+    python recipes/selection_table.py --stopped 3 runs/selection/val/scores-3-e*  # exit 0 once the
                                                            # last 3 folders (by epoch) brought no new best
-    python benchmarks/selection_table.py --by-scan runs/selection/val/spread*   # mean coverage after
+    python recipes/selection_table.py --by-scan runs/selection/val/spread*   # mean coverage after
                                                            # every scan, one column per planner
 
 Per folder and planner: the objects and part it evaluated (config.yaml: the published version and
@@ -116,7 +116,7 @@ def rank(row: dict, by: str) -> float:
 
 
 def epoch_of(folder: Path) -> int:
-    """The epoch in a folder name ``NET-eNNN`` (benchmarks/selection.sh names snapshots' evaluations so)."""
+    """The epoch in a folder name ``NET-eNNN`` (recipes/selection.sh names snapshots' evaluations so)."""
     match = re.search(r"-e(\d+)$", folder.name)
     return int(match.group(1)) if match else -1
 

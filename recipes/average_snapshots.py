@@ -1,7 +1,7 @@
 """Average the weights of several snapshots of one run into one checkpoint (issue 27's idea:
 snapshot averaging of the regression network, measured on the validation objects).
 
-    python benchmarks/average_snapshots.py OUT.pt runs/selection/fit/regression-dagger/snapshots/epoch-00{3,4,5}.pt
+    python recipes/average_snapshots.py OUT.pt runs/selection/fit/regression-dagger/snapshots/epoch-00{3,4,5}.pt
 
 The checkpoint is the last snapshot's with each weight the mean of the snapshots' (in float64,
 stored in the weight's own dtype) and no optimizer state: ``nbvtrain evaluate --checkpoint OUT.pt``

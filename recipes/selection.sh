@@ -6,13 +6,13 @@
 # version's validation objects after every sitting, the ideas measured on the same objects, and the
 # one evaluation of the test objects at the end. Every choice reads validation objects only.
 #
-#   benchmarks/selection.sh data                  # generate (resumable: run it again after a kill)
-#   benchmarks/selection.sh publish               # manifests/train-meshes-1.2.0.json, then verify it
-#   benchmarks/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-fc3-wide (twice as
+#   recipes/selection.sh data                  # generate (resumable: run it again after a kill)
+#   recipes/selection.sh publish               # manifests/train-meshes-1.2.0.json, then verify it
+#   recipes/selection.sh fit NET               # one sitting of NET: scores-fc3, scores-fc3-wide (twice as
 #                                                 # wide, scores-dagger's states added), scores-3, regression or
 #                                                 # regression-near-best (nbvnet-4-3 on the near-best loss);
 #                                                 # run it again until it says the validation stopped improving
-#   benchmarks/selection.sh dagger [N]            # DAgger round N (1): the policy's runs on the training
+#   recipes/selection.sh dagger [N]            # DAgger round N (1): the policy's runs on the training
 #                                                 # meshes, every state labelled exactly; then fit regression-dagger
 #                                                 # (round 1) or regression-daggerN: near-best, started from the
 #                                                 # round's policy, rounds 1..N added. The policy of round N is the
@@ -20,18 +20,18 @@
 #                                                 # (regression-near-best, regression-dagger, regression-dagger2...);
 #                                                 # fit regression-scans: nbvnet-4-3-scans (told where the sensor
 #                                                 # has been) from round 1's policy widened, on train + round 1
-#   benchmarks/selection.sh scans-dagger          # regression-scans' own round (round 2, seed 2, as dagger 2):
+#   recipes/selection.sh scans-dagger          # regression-scans' own round (round 2, seed 2, as dagger 2):
 #                                                 # rolled by its best snapshot; then fit regression-scans2 (that
 #                                                 # snapshot on train + round 1 + this round), the control being
 #                                                 # dagger 2 and fit regression-dagger2
-#   benchmarks/selection.sh scores-dagger         # the released score network's own runs on the training meshes
+#   recipes/selection.sh scores-dagger         # the released score network's own runs on the training meshes
 #                                                 # (6 each, seed 11), every state labelled exactly: the data
 #                                                 # scores-fc3-wide adds; fit scores-fc3-dagger fine-tunes the
 #                                                 # round's policy on the training part plus the round
-#   benchmarks/selection.sh select                # the ideas on the validation objects, and the table
-#   FINAL_SCORES=... FINAL_REGRESSION=... benchmarks/selection.sh test   # once: the shared test objects
-#   benchmarks/selection.sh table                 # every validation result so far, as one table
-#   SMOKE=1 benchmarks/selection.sh all           # every stage at a tiny budget (4 meshes, the smoke
+#   recipes/selection.sh select                # the ideas on the validation objects, and the table
+#   FINAL_SCORES=... FINAL_REGRESSION=... recipes/selection.sh test   # once: the shared test objects
+#   recipes/selection.sh table                 # every validation result so far, as one table
+#   SMOKE=1 recipes/selection.sh all           # every stage at a tiny budget (4 meshes, the smoke
 #                                                 # scene, 1 epoch a sitting) into runs/smoke-selection
 #
 # Run from the repository root with the package installed. Settings (environment): WORKERS (evaluate and
@@ -58,7 +58,7 @@ if [ "$SMOKE" = 1 ]; then
     TEST_MESHES=$OUT/test-meshes.txt
     SCENE=(--config configs/smoke.yaml)             # generate, evaluate: the tiny scene of the tests
     CLOUDS=()
-    EVAL=(--scans 3 --starts 0 --seed 1)
+    EVAL=(--scans 3 --random-starts 0 --seed 1)
     BATCH=(--batch-size 16)
 else
     OUT=${OUT:-runs/selection}
@@ -71,7 +71,7 @@ else
     TEST_MESHES=$MESHES/test/
     SCENE=()                                        # the default (fitted) scene, as train-meshes 1.1.0
     CLOUDS=(--set state.points=1024)                # every state's cloud too, as the published version
-    EVAL=(--scans 10 --starts 2 --seed 1)           # as the released models' card
+    EVAL=(--scans 10 --random-starts 2 --seed 1)    # as the released models' card
     BATCH=(--batch-size 64)
 fi
 MANIFEST=$MANIFESTS/$NAME-$VERSION.json
@@ -100,7 +100,7 @@ stage_publish() {
         --test-fraction 0 --notes "Issue 27's data: the 150 shared train meshes and the 999 usable procedural \
 objects of ../shared/meshes/extra/pybullet_random_urdfs (random_000-999 but random_168: NaN vertices), 14 runs \
 each from random start views, exploration epsilon 0.25, default (fitted) scene; its validation meshes choose \
-every setting (benchmarks/selection.sh). Made with: nbvdata generate --meshes configs/train-meshes-1.2.0.txt \
+every setting (recipes/selection.sh). Made with: nbvdata generate --meshes configs/train-meshes-1.2.0.txt \
 --out data/train-meshes-1.2.0 --runs-per-mesh 14 --explore 0.25"
     nbvdata verify "$MANIFEST"
 }
@@ -156,7 +156,7 @@ stage_scans_dagger() {
 
 rolled_by() {  # POLICY DATA [STAGE]: exit 2 unless DATA is a round POLICY rolled (policy.yaml's sha256)
     if [ ! -f "$2/policy.yaml" ]; then
-        echo "selection.sh: $2 holds no round: run benchmarks/selection.sh ${3:-dagger} first" >&2
+        echo "selection.sh: $2 holds no round: run recipes/selection.sh ${3:-dagger} first" >&2
         exit 2
     elif [ "$(sha256sum < "$1" | cut -d' ' -f1)" != "$(sed -n 's/^sha256: //p' "$2/policy.yaml")" ]; then
         echo "selection.sh: $1 did not roll $2 (policy.yaml); set DAGGER_POLICY to the checkpoint that did" >&2
@@ -181,7 +181,7 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
         # added (scores-dagger; a regression round's states have no view state a score network can read)
         scores-fc3-wide)
             if [ ! -f "$SCORES_DAGGER/policy.yaml" ]; then
-                echo "selection.sh: scores-fc3-wide adds $SCORES_DAGGER: run benchmarks/selection.sh scores-dagger first" >&2
+                echo "selection.sh: scores-fc3-wide adds $SCORES_DAGGER: run recipes/selection.sh scores-dagger first" >&2
                 exit 2
             fi
             echo "$(fit_flags scores-fc3 | sed 's/nbvscore-fc3/nbvscore-fc3-wide/') --add-train $SCORES_DAGGER" ;;
@@ -264,12 +264,12 @@ stage_fit() {
     converged "$net" && log "$net: converged (no new best in the last $PATIENCE sittings)" || true
 }
 
-converged() { [ -n "$(ls -d "$VAL/$1-e"* 2>/dev/null)" ] && python benchmarks/selection_table.py --by "$SELECT_BY" \
+converged() { [ -n "$(ls -d "$VAL/$1-e"* 2>/dev/null)" ] && python recipes/selection_table.py --by "$SELECT_BY" \
     --stopped "$PATIENCE" "$VAL/$1-e"*; }
 
-best() { python benchmarks/selection_table.py --by "$SELECT_BY" --top 1 "$VAL/$1-e"*; }
+best() { python recipes/selection_table.py --by "$SELECT_BY" --top 1 "$VAL/$1-e"*; }
 
-table() { python benchmarks/selection_table.py --by "$SELECT_BY" "$@"; }
+table() { python recipes/selection_table.py --by "$SELECT_BY" "$@"; }
 
 stage_select() {
     local fc3 three regression top
