@@ -3,6 +3,11 @@ MaskablePPO (sb3-contrib) on ``nbvdata/Reconstruct-v0``, in a fixed budget of CP
 
     pip install -e ".[rl]"
     python examples/rl_sb3.py --minutes 60      # train-meshes 1.2.0: train on its train part, choose on val
+    python examples/rl_sb3.py --manifest manifests/builtin-shapes-1.3.0.json --minutes 3 --episodes 4 --gammas 0.5
+
+The first needs the meshes of train-meshes 1.2.0 (``--meshes``, default ../shared/meshes) and
+says so in one line without them; the second runs on what a clone has, the built-in shapes (4 to
+learn on, 1 to choose on), in 3 CPU minutes.
 
 The policy is the score network (``nbvtrain.rl.ScoreFeatures``, ``nbvscore-fc3``) started from
 the released weights (``--init new``: from new ones) with a linear head over its 500 scores,
@@ -19,7 +24,8 @@ each from the one before, each's actor saved in ``--out`` as ``STAGE.pt``:
 Every stage is scored on the validation meshes (the real meshes of the val part, ``--val-meshes``
 of them, ``--val-starts`` seeded starts each, the same for every stage): the mean AUC of the
 coverage curve over 10 scans (PC-NBV's, as ``nbvtrain benchmark``) and the final coverage. The
-stage with the best validation AUC is copied to ``actor.pt``, the PPO run with the best to
+stage with the best validation AUC is copied to ``actor.pt`` (a row ``viewrank (reference)``:
+the ranker of per-view features, ``--ranker``, scored the same way - the bar; never a stage), the PPO run with the best to
 ``ppo.pt``. ``--minutes`` bounds this process's CPU time (one torch and one ray-casting thread;
 the same budget on an idle and a loaded machine): cloning may take 10 % of it, DAgger up to 35 %
 in all, the PPO runs share what is left equally. ``--scratch-minutes M`` adds, after the choice,
@@ -33,8 +39,9 @@ The actors run as planners (``NBV_RL_DIR``, default runs/rl_sb3)::
     nbvtrain benchmark --protocol paper --planners examples/rl_sb3.py:clone,examples/rl_sb3.py:policy,farthest
 
 (``policy``: ``actor.pt``, the stage chosen; ``clone``, ``dagger`` (its last round), ``ppo`` (the
-discount best on validation), ``scratch``: those stages.) Not part of the test suite (minutes of
-CPU); tests/test_rl.py runs its pieces on a tiny scene.
+discount best on validation), ``scratch``: those stages.) tests/test_rl.py runs its pieces on a
+tiny scene, and the whole recipe from a copy of a clone on the built-in shapes in a CPU budget of
+seconds.
 """
 
 from __future__ import annotations
@@ -56,15 +63,21 @@ try:
 except ImportError:
     sys.exit('examples/rl_sb3.py needs sb3-contrib and stable-baselines3: pip install -e ".[rl]"')
 
+from nbvdata.config import SimConfig
 from nbvdata.env import ReconstructEnv
+from nbvdata.errors import UserError
 from nbvdata.manifest import load_manifest
 from nbvdata.sources import find_part_meshes
+from nbvdata.text import plural
+from nbvdata.views import view_sphere
 from nbvtrain.benchmark import auc
 from nbvtrain.release import released_checkpoint
 from nbvtrain import rl
 
 ROOT = Path(__file__).resolve().parents[1]
 SCANS = 10
+CLONE = "python examples/rl_sb3.py --manifest manifests/builtin-shapes-1.3.0.json --minutes 3 --episodes 4 --gammas 0.5"
+"""The recipe on what a clone has: the built-in shapes (4 to learn on, 1 to choose on), 3 CPU minutes."""
 
 
 class Budget:
@@ -96,10 +109,10 @@ class StopAt(BaseCallback):
         return self.budget.left(self.until)
 
 
-def part_meshes(manifest: Path, meshes: Path, part: str, count: int) -> list[Path]:
+def part_meshes(manifest: Path, meshes: Path, part: str, count: int) -> list[Path | str]:
     """The first ``count`` real meshes (not the procedural ones) of ``part`` of the manifest's
-    mesh split, in the split's order."""
-    found = [mesh.path for mesh in find_part_meshes(load_manifest(manifest), part, meshes)
+    mesh split, in the split's order: mesh files, and ``"builtin:NAME"`` for a built-in shape."""
+    found = [mesh.path or mesh.source for mesh in find_part_meshes(load_manifest(manifest), part, meshes)
              if "pybullet_random_urdfs" not in str(mesh.path)]
     return found[:count] if count else found
 
@@ -123,10 +136,10 @@ def new_model(env, views: np.ndarray, checkpoint, gamma: float, lr: float, seed:
     return model
 
 
-def validate(env: ReconstructEnv, logits, meshes: int, starts: int) -> tuple[float, float]:
-    """Mean (AUC, final coverage) over ``meshes`` x ``starts`` seeded episodes of the greedy
-    masked policy, the curve held at its last value after an early end."""
-    choose, aucs, finals = rl.greedy(logits), [], []
+def validate(env: ReconstructEnv, choose, meshes: int, starts: int) -> tuple[float, float]:
+    """Mean (AUC, final coverage) over ``meshes`` x ``starts`` seeded episodes of ``choose(observation,
+    mask) -> view`` (a policy's greedy masked choice), the curve held at its last value after an early end."""
+    aucs, finals = [], []
     for mesh in range(meshes):
         for start in range(starts):
             observation, info = env.reset(seed=1000 * mesh + start, options={"mesh": mesh})
@@ -142,10 +155,16 @@ def validate(env: ReconstructEnv, logits, meshes: int, starts: int) -> tuple[flo
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--manifest", type=Path, default=ROOT / "manifests" / "train-meshes-1.2.0.json")
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()),
+                                     epilog=f"from a clone (no ../shared/meshes), on the built-in shapes in 3 CPU "
+                                     f"minutes: {CLONE}")
+    parser.add_argument("--manifest", type=Path, default=ROOT / "manifests" / "train-meshes-1.2.0.json",
+                        help="the published version whose train and val parts are learned and chosen on "
+                        "(train-meshes-1.2.0; manifests/builtin-shapes-1.3.0.json: the built-in shapes)")
     parser.add_argument("--meshes", type=Path, default=ROOT.parent / "shared" / "meshes",
                         help="the folder the manifest's meshes lie in or below (../shared/meshes)")
+    parser.add_argument("--config", type=Path, help="the scene's settings (default: the default scene, whose 500 "
+                        "views the released network scores; configs/smoke.yaml, a tiny one, needs --init new)")
     parser.add_argument("--train-meshes", type=int, default=0, help="real train-part meshes to learn on (0: all)")
     parser.add_argument("--val-meshes", type=int, default=0, help="real val-part meshes to choose on (0: all)")
     parser.add_argument("--val-starts", type=int, default=2)
@@ -158,6 +177,9 @@ def main() -> None:
     parser.add_argument("--init", choices=("released", "new"), default="released")
     parser.add_argument("--scratch-minutes", type=float, default=0.0)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ranker", default="released", help="a ranker file (nbvtrain fit --model viewrank-*) scored "
+                        "on the validation meshes beside the stages, as the bar they must clear; 'released' (default) "
+                        "the package's, 'none' no such row")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", type=Path, default=Path("runs/rl_sb3"))
     args = parser.parse_args()
@@ -165,19 +187,26 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     budget = Budget()
-    train_paths = part_meshes(args.manifest, args.meshes, "train", args.train_meshes)
-    val_paths = part_meshes(args.manifest, args.meshes, "val", args.val_meshes)
-    args.out.mkdir(parents=True, exist_ok=True)
-    train = ReconstructEnv(train_paths, overrides=args.overrides, info_scores=True, scene_cache=None)
-    val = ReconstructEnv(val_paths, overrides=args.overrides, scene_cache=None)
+    try:
+        train_paths = part_meshes(args.manifest, args.meshes, "train", args.train_meshes)
+        val_paths = part_meshes(args.manifest, args.meshes, "val", args.val_meshes)
+        train = ReconstructEnv(train_paths, args.config, args.overrides, info_scores=True, scene_cache=None)
+        val = ReconstructEnv(val_paths, args.config, args.overrides, scene_cache=None)
+    except UserError as error:
+        sys.exit(f"examples/rl_sb3.py: {error}; or learn on the built-in shapes a clone has: {CLONE}")
     views = train.views.unit_positions
     checkpoint = released_checkpoint("scores") if args.init == "released" else None
-    print(f"{len(train_paths)} training meshes, {len(val_paths)} validation meshes x {args.val_starts} starts; "
+    if checkpoint is not None and len(views) != len(view_sphere(SimConfig().views)):
+        sys.exit(f"examples/rl_sb3.py: the scene has {len(views)} candidate views, the released score network scores "
+                 f"the default scene's {len(view_sphere(SimConfig().views))}: pass --init new, or drop --config/--set")
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(f"{plural(len(train_paths), 'training mesh')}, {plural(len(val_paths), 'validation mesh')} x "
+          f"{plural(args.val_starts, 'start')}; "
           f"{args.minutes:g} CPU minutes", flush=True)
     rows = []
 
-    def record(stage: str, steps: int, logits) -> tuple[float, float]:
-        figures = validate(val, logits, len(val_paths), args.val_starts)
+    def record(stage: str, steps: int, logits=None, choose=None) -> tuple[float, float]:
+        figures = validate(val, choose or rl.greedy(logits), len(val_paths), args.val_starts)
         rows.append({"stage": stage, "cpu_minutes": round(budget.minutes(), 2), "steps": steps,
                      "val_auc": round(100 * figures[0], 2), "val_coverage": round(100 * figures[1], 2)})
         print(" | ".join(f"{k} {v}" for k, v in rows[-1].items()), flush=True)
@@ -192,6 +221,15 @@ def main() -> None:
     parameters = list(policy.features_extractor.parameters()) + list(policy.action_net.parameters())
     logits = actor_logits(policy)
     results = {"start": record("start", 0, logits)}
+    if args.ranker != "none":  # the ranker of per-view features (docs/viewrank.md): the bar, trained on no RL
+        from nbvtrain.release import NoReleasedModel, released_ranker
+        from nbvtrain.viewrank import env_choice, load_ranker
+
+        try:
+            ranker = load_ranker(released_ranker() if args.ranker == "released" else Path(args.ranker))
+            record("viewrank (reference)", 0, choose=env_choice(ranker, val.views, val.config))
+        except NoReleasedModel as reason:
+            print(f"examples/rl_sb3.py: no viewrank reference row: {reason}", flush=True)
     rl.save_actor(args.out / "start.pt", policy.features_extractor, policy.action_net, {"stage": "start"})
 
     def after_round(round_: int, data) -> None:

@@ -15,6 +15,7 @@ import os
 import select
 import signal
 import sys
+import textwrap
 from dataclasses import dataclass
 from typing import Callable
 
@@ -24,9 +25,25 @@ CLOSED_PIPE_STATUS = 128 + signal.SIGPIPE
 """141: what a shell reports for a tool that SIGPIPE stopped, as ``yes | head -1`` does for ``yes``."""
 
 
+class WholeWords(argparse.HelpFormatter):
+    """Help text wrapped at spaces only: a name with hyphens (``--random-starts``, ``proximity-count``)
+    stays whole on one line, so it can be found and pasted."""
+
+    def _split_lines(self, text, width):
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+    def _fill_text(self, text, width, indent):
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent, subsequent_indent=indent,
+                             break_on_hyphens=False)
+
+
 class Parser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line naming ``--help``, exit status 2; its
-    subcommands' parsers are Parsers too."""
+    subcommands' parsers are Parsers too; help wraps at spaces only (``WholeWords``)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", WholeWords)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help lists the options)\n")

@@ -3,8 +3,10 @@
     benchmark.md   per budget: each metric's mean and 95 % interval per planner (over objects),
                    the paired differences against the reference planner with win / tie / loss
                    counts, the ranking by AUC ("not separable" where an interval holds 0), and the
-                   split by difficulty; then the time per decision (the only part that depends on
-                   the machine)
+                   split by difficulty, each table with its number of objects; on fewer than
+                   ``nbvtrain.statistics.MIN_OBJECTS`` objects the figures and intervals without a
+                   verdict, said at the top; then the time per decision (the only part that
+                   depends on the machine)
     per_object.csv each object's metrics per planner and budget, the mean over its starts, its
                    set-cover floor and its difficulty third
     runs.csv       every reconstruction's metrics per budget
@@ -18,7 +20,8 @@
     failures.tsv, tracebacks.txt   meshes that failed, and where a planner raised
 
 A scan-count metric of a start that never reached its target counts as the budget plus one
-(censored: "not reached within the budget"). The difficulty of an object is the oracle's AUC at
+(censored: "not reached within the budget"); benchmark.md says so under each table and counts
+the reconstructions that did not reach it ("k/N n.r."). The difficulty of an object is the oracle's AUC at
 the first budget, mean over starts (how fast even the greedy best planner covers it: low for
 objects with deep self-occlusion, high for convex ones), split into thirds: hard, medium, easy.
 """
@@ -35,7 +38,8 @@ import yaml
 
 from nbvtrain.benchmark import RUN_METRICS, BenchmarkReport
 from nbvtrain.evaluate import write_failures
-from nbvtrain.statistics import bootstrap_interval, compare, ranking, tertiles
+from nbvdata.text import plural
+from nbvtrain.statistics import MIN_OBJECTS, bootstrap_interval, compare, ranking, tertiles
 
 # (column, title, scale, digits, higher is better) of the metrics benchmark.md tabulates
 SHOWN = [("auc", "AUC (%)", 100, 1, True), ("coverage", "coverage (%)", 100, 1, True),
@@ -110,25 +114,42 @@ def _values(rows: list[dict], budget: str, planners: list[str], metric: str) -> 
     return meshes, values
 
 
-def summary_markdown(report: BenchmarkReport, rows: list[dict], reference: str, seed: int) -> str:
-    """benchmark.md (module docstring)."""
+def summary_markdown(report: BenchmarkReport, rows: list[dict], reference: str | list[str], seed: int) -> str:
+    """benchmark.md (module docstring). ``reference``: the planner every other is compared with, or
+    several: the first for every table, each other for the AUC (``_auc_against``)."""
+    references = [reference] if isinstance(reference, str) else list(reference)
+    reference, others = references[0], references[1:]
     protocol, planners = report.protocol, report.planners
     objects = len({row["mesh"] for row in rows})
     starts = max((row["starts"] for row in rows), default=0)
-    lines = [f"# Benchmark: protocol {protocol.name}, {objects} objects, {starts} starts each", "",
-             f"Protocol: {protocol.source or protocol.name}; budgets {', '.join(protocol.budgets)} (views scanned, "
-             f"the start included: {', '.join(str(v) for v in protocol.budgets.values())}). Every value is the mean over "
-             f"objects of each object's mean over its starts; [low, high] the 95 % bootstrap interval of that mean "
-             f"(objects resampled, seed {seed}). Reference for the paired differences: `{reference}`.", ""]
+    lines = [f"# Benchmark: protocol {protocol.name}, {plural(objects, 'object')}, {plural(starts, 'start')} each", ""]
+    if objects < MIN_OBJECTS:
+        lines += [f"**No verdicts: {plural(objects, 'object')}, fewer than {MIN_OBJECTS}.** A 95 % bootstrap interval "
+                  f"over so few objects holds the true mean far less often than 95 % (about 93 % of the time on 20 "
+                  f"objects, 90 % on 10, half the time on 2), so the figures and intervals below are given without "
+                  f"calling a difference separable or a planner ahead: run on at least {MIN_OBJECTS} objects for a "
+                  "verdict (the bench corpus has 201).", ""]
+    lines += [f"Protocol: {protocol.source or protocol.name}; budgets {', '.join(protocol.budgets)} (views scanned, "
+              f"the start included: {', '.join(str(v) for v in protocol.budgets.values())}). Every value is the mean "
+              f"over objects of each object's mean over its starts; [low, high] the 95 % bootstrap interval of that "
+              f"mean (objects resampled, seed {seed}). Reference for the paired differences: `{reference}`.", "",
+              _units(report), ""]
     for budget in protocol.budgets:
         lines += [f"## {budget}", ""]
         lines += _means_table(rows, budget, planners, report, seed)
         if reference in planners:
             lines += ["", f"Paired differences against `{reference}` (planner - {reference}, per object; wins / ties / "
-                          "losses count objects; \"yes\" where the interval excludes 0):", ""]
+                          "losses count objects; n the objects compared; \"yes\" where the interval excludes 0, "
+                          f"\"no verdict\" on fewer than {MIN_OBJECTS} objects):", ""]
             lines += _differences_table(rows, budget, planners, reference, seed)
-        lines += ["", "Ranking by AUC (each against the next one down, paired over objects):", ""]
+            lines += ["", *_step_table(report, budget, planners, reference, seed)]
+        for other in others:
+            if other in planners:
+                lines += ["", *_auc_against(rows, budget, planners, other, seed)]
         _, values = _values(rows, budget, planners, "auc")
+        common = int(np.isfinite(np.array(list(values.values()))).all(axis=0).sum())
+        lines += ["", f"Ranking by AUC (each against the next one down, paired over the n = {plural(common, 'object')} "
+                      "every planner has):", ""]
         for position, (planner, mean, verdict) in enumerate(ranking({p: 100 * v for p, v in values.items()}, seed), 1):
             lines.append(f"{position}. `{planner}` {mean:.1f} %" + (f" - {verdict}" if verdict else ""))
         lines += ["", *_difficulty_table(rows, budget, planners, reference, seed), ""]
@@ -146,13 +167,31 @@ def summary_markdown(report: BenchmarkReport, rows: list[dict], reference: str, 
     return "\n".join(lines) + "\n"
 
 
+def _units(report: BenchmarkReport) -> str:
+    """What the columns of the means tables measure, in which units."""
+    text = ("Columns: AUC (%) the area under the coverage curve (PC-NBV's, 100 % for a curve at full coverage "
+            "from the first view); coverage (%) of the surface, observable (%) of what some candidate view can see, "
+            "after the budget; path (m) the camera's path round the object's bounding sphere, path (radii) the same "
+            "in bounding-sphere radii r; Chamfer (x1e-3 r^2) the Chamfer distance (mean squared nearest-neighbour "
+            "distance, reference to scanned points and back) in thousandths of r squared; scans to X the first scan "
+            "(the start counts) whose observable coverage reaches X %")
+    if report.protocol.thresholds:
+        text += ("; sc@t (%) the share of the reference points within t radii of a scanned point, nsc@t that share "
+                 "of the points some reachable candidate view reaches")
+    return text + "."
+
+
 def _means_table(rows, budget, planners, report, seed) -> list[str]:
     shown = SHOWN + [(name, name.replace("_", " "), 1, 2, False) for name in targets_of(report)] + [
         (name, name.replace("_", "@"), 100, 1, True) for name in thresholds_of(report)]
-    header = "| planner | " + " | ".join(title for _, title, _, _, _ in shown) + " |"
+    meshes = {row["mesh"] for row in rows if row["budget"] == budget}
+    header = (f"| planner (n = {plural(len(meshes), 'object')}) | " + " | ".join(title for _, title, *_ in shown)
+              + " |")
     lines = [header, "|---" * (len(shown) + 1) + "|"]
     for planner in planners:
         cells = []
+        runs = [run for run in report.runs if run["budget"] == budget and run["planner"] == planner
+                and run["mesh"] in meshes]
         for offset, (name, _, scale, digits, _) in enumerate(shown):
             _, values = _values(rows, budget, [planner], name)
             value = values[planner][np.isfinite(values[planner])] * scale
@@ -160,8 +199,15 @@ def _means_table(rows, budget, planners, report, seed) -> list[str]:
                 cells.append("-")
                 continue
             low, high = bootstrap_interval(value, seed + offset)
-            cells.append(f"{value.mean():.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]")
+            missed = sum(run[name] is None for run in runs) if name.startswith("scans_to") else 0
+            cells.append(f"{value.mean():.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+                         + (f", {missed}/{len(runs)} n.r." if missed else ""))
         lines.append(f"| {planner} | " + " | ".join(cells) + " |")
+    if targets_of(report):
+        views = report.protocol.budgets[budget]
+        lines += ["", f"Scans to X: a start that does not reach X % within the budget counts as the budget plus one "
+                      f"({views + 1} for these {views} scans) in the means; \"k/N n.r.\": k of the planner's N "
+                      "reconstructions (objects x starts) did not reach it."]
     floors = [row["floor"] for row in rows if row["budget"] == budget and row["planner"] == planners[0]]
     if floors and np.isfinite(floors).any():
         lines += ["", f"Set-cover floor (the fewest views that reach all the observable surface from the start, "
@@ -170,10 +216,10 @@ def _means_table(rows, budget, planners, report, seed) -> list[str]:
 
 
 def _differences_table(rows, budget, planners, reference, seed) -> list[str]:
-    lines = ["| planner | " + " | ".join(f"{title}: difference [95 %], W/T/L, separable"
-                                          for name, title, *_ in SHOWN if name in COMPARED) + " |",
-             "|---" * (1 + len(COMPARED)) + "|"]
-    cells = defaultdict(list)
+    lines = ["| planner | n | " + " | ".join(f"{title}: difference [95 %], W/T/L, separable"
+                                              for name, title, *_ in SHOWN if name in COMPARED) + " |",
+             "|---" * (2 + len(COMPARED)) + "|"]
+    cells, objects = defaultdict(list), {}
     for name, _, scale, digits, higher in SHOWN:
         if name not in COMPARED:
             continue
@@ -181,12 +227,59 @@ def _differences_table(rows, budget, planners, reference, seed) -> list[str]:
         for comparison in compare({p: v * scale for p, v in values.items()}, reference, seed, higher_is_better=higher):
             if comparison.planner == reference:
                 continue
+            objects.setdefault(comparison.planner, comparison.objects)  # the first metric's: AUC
+            verdict = ("yes" if comparison.separable else "no") if comparison.decided else "no verdict"
             cells[comparison.planner].append(
                 f"{comparison.mean:+.{digits}f} [{comparison.low:+.{digits}f}, {comparison.high:+.{digits}f}], "
-                f"{comparison.wins}/{comparison.ties}/{comparison.losses}, {'yes' if comparison.separable else 'no'}")
+                f"{comparison.wins}/{comparison.ties}/{comparison.losses}, {verdict}")
     for planner in planners:
         if planner != reference:
-            lines.append(f"| {planner} | " + " | ".join(cells[planner]) + " |")
+            lines.append(f"| {planner} | {objects.get(planner, 0)} | " + " | ".join(cells[planner]) + " |")
+    return lines
+
+
+def _auc_against(rows, budget, planners, reference, seed) -> list[str]:
+    """The AUC of every planner against a second reference (e.g. the best hand-crafted metric)."""
+    _, values = _values(rows, budget, planners, "auc")
+    lines = [f"AUC (points) against `{reference}` (planner - {reference}, per object; [95 %], W/T/L, separable):", "",
+             "| planner | n | AUC difference |", "|---|---|---|"]
+    for comparison in compare({p: 100 * v for p, v in values.items()}, reference, seed):
+        if comparison.planner == reference:
+            continue
+        verdict = ("yes" if comparison.separable else "no") if comparison.decided else "no verdict"
+        lines.append(f"| {comparison.planner} | {comparison.objects} | {comparison.mean:+.1f} [{comparison.low:+.1f}, "
+                     f"{comparison.high:+.1f}], {comparison.wins}/{comparison.ties}/{comparison.losses}, {verdict} |")
+    return lines
+
+
+def step_scans(views: int) -> list[int]:
+    """The scans the per-step table shows for a budget of ``views``: each from the second up to 10,
+    then a few up to the budget."""
+    scans = list(range(2, min(views, 10) + 1))
+    return scans + [scan for scan in (12, 15, 20, 25, 31) if 10 < scan <= views and scan not in scans]
+
+
+def _step_table(report: BenchmarkReport, budget: str, planners: list[str], reference: str, seed: int) -> list[str]:
+    """The edge per scan step: observable coverage (points) minus the reference's after each scan,
+    paired per object (its mean over starts), [95 %] over the objects."""
+    views = report.protocol.budgets[budget]
+    scans = step_scans(views)
+    by = defaultdict(list)
+    for row in report.rows:
+        if row["scan"] in scans:
+            by[(row["planner"], row["mesh"], row["scan"])].append(row["observable_coverage"])
+    meshes = sorted({row["mesh"] for row in report.rows})
+    lines = [f"Observable coverage (points) minus `{reference}`'s after each scan (the edge per step; mean over objects "
+             "[95 %]):", "", "| planner | " + " | ".join(f"scan {scan}" for scan in scans) + " |",
+             "|---" * (1 + len(scans)) + "|"]
+    cells = defaultdict(list)
+    for scan in scans:
+        values = {planner: np.array([100 * np.mean(by[(planner, mesh, scan)]) if by[(planner, mesh, scan)] else np.nan
+                                     for mesh in meshes]) for planner in planners}
+        for comparison in compare(values, reference, seed):
+            cells[comparison.planner].append(f"{comparison.mean:+.1f} [{comparison.low:+.1f}, {comparison.high:+.1f}]"
+                                             if comparison.objects else "-")
+    lines += [f"| {planner} | " + " | ".join(cells[planner]) + " |" for planner in planners if planner != reference]
     return lines
 
 
@@ -207,7 +300,8 @@ def _difficulty_table(rows, budget, planners, reference, seed) -> list[str]:
     if reference not in planners:
         return lines
     lines += ["", f"AUC difference against `{reference}` by difficulty (points; [95 %] over that third's objects; "
-                  "W/T/L):", "", "| planner | " + " | ".join(DIFFICULTY) + " |", "|---" * 4 + "|"]
+                  "W/T/L):", "", "| planner | " + " | ".join(f"{label} ({len(groups[label])})" for label in DIFFICULTY)
+              + " |", "|---" * 4 + "|"]
     cells = defaultdict(list)
     for label in DIFFICULTY:
         third = [row for row in rows if row["difficulty"] == label]
@@ -237,7 +331,8 @@ def _cell(value) -> str:
     return str(value)
 
 
-def write_benchmark(report: BenchmarkReport, out: Path, reference: str, seed: int, settings: dict) -> list[dict]:
+def write_benchmark(report: BenchmarkReport, out: Path, reference: str | list[str], seed: int,
+                    settings: dict) -> list[dict]:
     """Write every file of the module docstring into ``out``; returns the per-object rows."""
     out.mkdir(parents=True, exist_ok=True)
     rows = per_object(report)

@@ -24,7 +24,7 @@ from nbvdata.commandline import (Integer, Number, Parser, exit_quietly_when_stdo
 from nbvdata.config import ConfigError, from_dict, load_config, to_dict
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
-from nbvdata.userarrays import NpyError, read_npy
+from nbvdata.userarrays import NOT_NPY, NpyError, file_kind, is_hdf5, read_npy
 from nbvtrain import __version__
 
 INSTALL_TORCH = ('pip install -e ".[train]" in the checkout, or pip install torch (CPU only: pip install torch '
@@ -123,9 +123,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     reads_scans = getattr(predictor.model, "reads_scans", False)
     if predictor.inputs == "points":
         grid, source, taken = _cloud_input(args, predictor)
-    elif args.grid.suffix == ".npy":
+    elif args.grid.suffix == ".npy" or not is_hdf5(args.grid):  # by its bytes: a grid, or no shard either
         try:
-            grid, source = read_npy(args.grid), str(args.grid)
+            grid, source = read_npy(args.grid, _not_a_grid(args.grid)), str(args.grid)
         except NpyError as error:
             raise ShardError(str(error)) from None
     else:
@@ -163,6 +163,15 @@ def cmd_predict(args: argparse.Namespace) -> int:
                   for index, prediction in enumerate(predictions)]
     print(json.dumps(answer, indent=2, allow_nan=False))
     return 0
+
+
+def _not_a_grid(path: Path) -> str:
+    """What ``predict`` says of a file that is neither a .npy grid nor an HDF5 file: what it is not,
+    and what it is (no advice to delete it: it is no damaged shard)."""
+    if path.suffix == ".npy" or not path.is_file():
+        return NOT_NPY
+    return (f"not a shard (.h5) or a .npy grid ({file_kind(path)}): give a grid saved with np.save (GRID.npy), or "
+            "a shard nbvdata generate wrote")
 
 
 def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
@@ -371,7 +380,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
     weights = _numbers(args.hybrid_weight, "--hybrid-weight")
     checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint,
-                   "ranker": args.ranker}
+                   "ranker": _checkpoint_list(args.ranker, "--ranker")}
     if args.spread is not None and args.no_stall:
         raise ConfigError("--spread never repeats a view already: drop --no-stall")
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall, args.tta,
@@ -383,13 +392,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                           "--planners")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     workers = args.workers or os.cpu_count() or 1
-    report = evaluate(sources, planners, config, args.scans, args.starts, args.seed, progress, workers, args.floors,
-                      args.rerun)
+    report = evaluate(sources, planners, config, args.scans, args.random_starts, args.seed, progress, workers,
+                      args.floors, args.rerun)
     report.failures = failures + report.failures
     learned = {p.name: p.checkpoints for p in planners if hasattr(p, "checkpoints")}
     recorded = {name: files[0] if len(files) == 1 else files for name, files in learned.items()}  # or an ensemble
     settings = settings_dict(config, meshes=args.meshes, **selection, planners=[p.name for p in planners],
-                             scans=args.scans, starts=args.starts, seed=args.seed, checkpoints=recorded,
+                             scans=args.scans, random_starts=args.random_starts, seed=args.seed, checkpoints=recorded,
                              no_stall=args.no_stall, tta=args.tta, floors=args.floors,
                              **({"spread": args.spread} if args.spread is not None else {}),
                              **({"hybrid_weights": weights, "hybrid_stride": args.hybrid_stride}
@@ -425,22 +434,37 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     unknown = [name for name in names if name not in PLANNERS and ":" not in name]
     if unknown or not names:
         raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy module:function")
-    if args.reference not in names:
+    references = [name.strip() for name in args.reference.split(",") if name.strip()]
+    missing = [name for name in references if name not in names]
+    if missing or not references:
         raise ConfigError(f"--reference {args.reference}: not among --planners ({','.join(names)}): add it, or compare "
                           "against one of them")
     meshes = args.meshes if args.meshes is not None else BENCH_MESHES
-    if not meshes.exists():
-        raise ConfigError(f"--meshes {meshes}: no such folder (the default is the bench corpus, ../shared/meshes/bench "
-                          "beside the checkout): pass --meshes DIR")
-    try:
-        sources, failures = mesh_sources(meshes)
-    except MeshError as error:
-        raise ConfigError(str(error)) from None
+    if args.manifest is not None:
+        from nbvdata.sources import part_sources
+
+        if args.part is None:
+            raise ConfigError("--manifest needs --part val, test or train: the part of its mesh split to run on")
+        sources, selection = part_sources(args.manifest, args.part, args.meshes)
+        failures = []
+        meshes = f"{args.manifest} --part {args.part}"
+    else:
+        if args.part is not None:
+            raise ConfigError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
+                              "whose mesh split it names")
+        if not meshes.exists():
+            raise ConfigError(f"--meshes {meshes}: no such folder (the default is the bench corpus, "
+                              "../shared/meshes/bench beside the checkout): pass --meshes DIR")
+        try:
+            sources, failures = mesh_sources(meshes)
+        except MeshError as error:
+            raise ConfigError(str(error)) from None
     if not sources:
         raise ConfigError(f"--meshes {meshes}: no mesh files in it")
     sources = sources[:args.limit] if args.limit else sources
     checkpoints = {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"),
-                   "regression": args.checkpoint, "classification": args.class_checkpoint, "ranker": args.ranker}
+                   "regression": args.checkpoint, "classification": args.class_checkpoint,
+                   "ranker": _checkpoint_list(args.ranker, "--ranker")}
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints,
                                        foreign_views=protocol.snap)
     for message in skipped:
@@ -448,9 +472,10 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     radius = config.mesh.object_size * math.sqrt(3) / 2  # what a robot knows of the object's bounding sphere
     planners += [TravelPlanner(planner, weight, radius) for weight in weights for planner in list(planners)
                  if hasattr(planner, "candidate_scores")]
-    if args.reference not in {planner.name for planner in planners}:
-        raise ConfigError(f"--reference {args.reference}: that planner was skipped (see above): pass its checkpoint or "
-                          "another --reference")
+    skipped_references = [name for name in references if name not in {planner.name for planner in planners}]
+    if skipped_references:
+        raise ConfigError(f"--reference {','.join(skipped_references)}: that planner was skipped (see above): pass its "
+                          "checkpoint or another --reference")
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     workers = args.workers or os.cpu_count() or 1
     report = benchmark(sources, planners, config, protocol, args.starts, args.seed, workers, progress, args.rerun)
@@ -460,7 +485,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
         reference=args.reference, limit=args.limit, travel_weights=weights,
         checkpoints={name: [str(p) for p in paths] if isinstance(paths, list) else (str(paths) if paths else None)
                      for name, paths in checkpoints.items()})
-    write_benchmark(report, args.out, args.reference, args.seed, settings)
+    write_benchmark(report, args.out, references, args.seed, settings)
     runs = len({(r["mesh"], r["planner"], r["start"]) for r in report.rows})
     print(f"nbvtrain benchmark: protocol {protocol.name}, {plural(runs, 'reconstruction')} of "
           f"{plural(len({r['mesh'] for r in report.rows}), 'object')} in {report.seconds:.1f} s; wrote "
@@ -495,10 +520,11 @@ def cmd_release(args: argparse.Namespace) -> int:
     """Write the released models (float16 weights), their reference answers and model card."""
     from nbvtrain.release import release
 
-    runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression)) if folder}
+    runs = {task: folder for task, folder in (("scores", args.scores), ("regression", args.regression),
+                                              ("viewrank", args.viewrank)) if folder}
     if not runs:
-        raise ConfigError("nothing to release: give --scores RUN and/or --regression RUN (run folders of nbvtrain fit, "
-                          "or checkpoint files of them)")
+        raise ConfigError("nothing to release: give --scores RUN, --regression RUN and/or --viewrank RUN (run folders of "
+                          "nbvtrain fit, or checkpoint files of them)")
     notes = None
     if args.notes is not None:
         try:
@@ -643,7 +669,9 @@ def _add_plan(sub, released: dict[str, str]) -> None:
     plan.add_argument("--up", default="z", help="the world's vertical: x, y, z, -x, -y, -z or a vector a,b,c "
                       "(default z)")
     plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit: a candidate-score, regression or "
-                      f"classification network (default: the released score network, {released['scores']})")
+                      "classification network, or a ranker (viewrank.json or .pt; default: the released ranker, "
+                      f"{released['viewrank']}, ahead on the validation objects; the released score network, "
+                      f"{released['scores']}, is nbvtrain/released/{released['scores']}.pt)")
     plan.add_argument("--max-range", type=positive_float, help="with --scans: metres from the sensor beyond which a "
                       "point marks nothing occupied and carves free space to that range (default sensor.far x k)")
     plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
@@ -688,8 +716,9 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
                           "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
     evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
-    evaluate.add_argument("--ranker", type=Path, help="the viewrank planner's model: a ranker file of nbvtrain fit "
-                          "--model viewrank-gbm|viewrank-mlp (default: the released one)")
+    evaluate.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
+                          "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
+                          "compared as viewrank-FOLDER each")
     evaluate.add_argument("--score-checkpoint", help="candidate-score checkpoint (a run of an nbvscore-* model; "
                           f"default: the released one, {released['scores']}), or several separated by commas: an "
                           "ensemble (mean of their standardised scores)")
@@ -705,8 +734,10 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--class-checkpoint", type=Path, help="classification checkpoint (--model nbvnet-class; none "
                           "is released: without one the classification planner is skipped)")
     evaluate.add_argument("--planners", help="comma-separated names of registered planners (nbvtrain.planners.PLANNERS: "
-                          "scores, regression, classification, infogain, oracle, setcover, random, farthest, hybrid; "
-                          "default all but hybrid; docs/evaluation.md) and policies on nbvdata.env's observation as "
+                          "scores, regression, classification, infogain, oracle, setcover, random, farthest, viewrank, "
+                          "hybrid and the hand-crafted metrics occlusion-aware, unobserved-voxel, rear-side-voxel, "
+                          "rear-side-entropy, proximity-count, average-entropy, area-factor; default all but hybrid and "
+                          "the metrics; docs/evaluation.md) and policies on nbvdata.env's observation as "
                           "module:function or path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "
                           "scanned view: they fall back to the best alternative not scanned yet (planner names get "
@@ -716,8 +747,10 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
                           "(planner names get -spreadW; off = the paper's behaviour; docs/selection.md measured W)")
     evaluate.add_argument("--scans", type=Integer(2), default=10, help="scans per reconstruction, the start and at "
                           "least one planned one (default 10)")
-    evaluate.add_argument("--starts", type=non_negative_int, default=0,
-                          help="random start views per object besides the front one")
+    evaluate.add_argument("--random-starts", type=non_negative_int, default=0, metavar="K",
+                          help="random start views per object besides the front one: K + 1 starts in all (default 0)")
+    evaluate.add_argument("--starts", action=_RenamedStarts, help="renamed --random-starts K (refused in one line "
+                          "that says so: benchmark's --starts N counts all N starts)")
     evaluate.add_argument("--seed", type=non_negative_int, default=0,
                           help="seed of start views, reference points, random planner")
     evaluate.add_argument("--out", type=Path, default=Path("runs/evaluate"), help="output folder (runs/evaluate)")
@@ -739,6 +772,16 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.set_defaults(func=cmd_evaluate)
 
 
+class _RenamedStarts(argparse.Action):
+    """``evaluate --starts``: refused in one line, naming --random-starts (it counted the random starts
+    besides the front one, where benchmark's --starts counts them all)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.error(f"--starts {values}: evaluate's option is --random-starts K, the random start views besides "
+                     f"the front one (K + 1 starts in all; --starts {values} was --random-starts {values}); "
+                     "benchmark's --starts N counts all N")
+
+
 def _add_benchmark(sub, released: dict[str, str]) -> None:
     """``benchmark``: its options."""
     bench = sub.add_parser("benchmark", help="the field's protocols (paper, pc-nbv, scvp, objview) on a corpus of "
@@ -746,12 +789,18 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
     bench.add_argument("--protocol", default="paper", help="a protocol of configs/protocols (paper, pc-nbv, scvp, "
                        "objview) or a protocol file .yaml (default paper; docs/benchmark.md)")
     bench.add_argument("--meshes", type=Path, help="folder of meshes, one mesh file or a .txt list (default: the bench "
-                       "corpus, ../shared/meshes/bench)")
+                       "corpus, ../shared/meshes/bench); with --manifest the folder its meshes lie in or below")
+    bench.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): run on exactly "
+                       "the meshes of --part of its mesh split (choosing on validation objects: --part val), found under "
+                       "--meshes by name and sha256")
+    bench.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
     bench.add_argument("--planners", help="comma-separated registered planners and module:function policies "
                        "(default all but hybrid, as evaluate)")
     bench.add_argument("--reference", default="farthest", help="the planner every other is compared with, paired per "
-                       "object (default farthest)")
-    bench.add_argument("--starts", type=positive_int, default=3, help="start views per object (default 3)")
+                       "object (default farthest); several, comma-separated: the first for every table, each other "
+                       "for the AUC too (e.g. farthest,proximity-count)")
+    bench.add_argument("--starts", type=positive_int, default=3, metavar="N", help="start views per object, all "
+                       "counted (default 3; evaluate's --random-starts K gives K + 1)")
     bench.add_argument("--seed", type=non_negative_int, default=0, help="seed of start views, reference points, the "
                        "random planner and the bootstrap (default 0)")
     bench.add_argument("--workers", type=non_negative_int, default=1, help="meshes at once, in processes of one thread "
@@ -760,8 +809,9 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
     bench.add_argument("--travel-weight", metavar="L[,L...]", help="also run oracle, scores, infogain and farthest "
                        "weighing the path to each view: score (scaled to [0, 1]) minus L times the path (scaled by the "
                        "longest); one planner NAME-travelL per weight (docs/benchmark.md)")
-    bench.add_argument("--ranker", type=Path, help="the viewrank planner's model: a ranker file of nbvtrain fit "
-                          "--model viewrank-gbm|viewrank-mlp (default: the released one)")
+    bench.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
+                          "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
+                          "compared as viewrank-FOLDER each")
     bench.add_argument("--score-checkpoint", help="candidate-score checkpoint(s), comma-separated (default: the released "
                        f"one, {released['scores']})")
     bench.add_argument("--checkpoint", type=Path, help="regression checkpoint (default: the released one, "
@@ -787,6 +837,8 @@ def _add_release(sub, released: dict[str, str]) -> None:
                          "the validation objects chose)")
     release.add_argument("--regression", type=Path, help="run folder of a regression network (nbvnet-*), or a "
                          "checkpoint file of such a run")
+    release.add_argument("--viewrank", type=Path, help="run folder of a ranker (nbvtrain fit --model viewrank-gbm|"
+                         "viewrank-mlp: its viewrank.json or .pt and metrics.json), or its model file")
     release.add_argument("--notes", type=Path, help="markdown file: how the released networks were chosen, a section "
                          "of the card (default: the card's section from the last release, if any)")
     release.add_argument("--evaluation", type=Path, nargs="*", default=[], help="output folders of nbvtrain "

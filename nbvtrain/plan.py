@@ -43,7 +43,7 @@ from nbvdata.sensor import Scan
 from nbvdata.views import Pose, ViewSet, look_at_rotations, scanned_views, spread_view, view_sphere
 from nbvtrain.predict import NBVPrediction, Predictor, candidate_fields
 from nbvtrain.release import released_checkpoint
-from nbvtrain.sensordata import SensorScan, read_octomap, read_scans
+from nbvtrain.sensordata import SensorScan, check_pose, read_octomap, read_scans
 
 AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0), "-z": (0, 0, -1)}
 UP_FIX = "give --up as x, y, z, -x, -y, -z or a vector a,b,c (write --up=-z when it starts with a minus)"
@@ -173,21 +173,30 @@ def cloud_from_scans(scans: list[SensorScan], frame: ObjectFrame, config: SimCon
 
 
 def check_world_frame(scan: SensorScan, frame: ObjectFrame, config: SimConfig) -> None:
-    """PlanError when a cloud looks like camera-frame points: moved by its camera-to-world pose,
-    many more of them fall in the object's box than as given (``sensordata.check_pose`` checks
-    the pose against the cloud; this catches a camera-frame cloud whose object lies in front of
-    the sensor, which that check cannot)."""
+    """PlanError when a cloud looks like camera-frame points: moved by its pose (then the pose is
+    camera-to-world) or by the pose's inverse (then the pose given is world-to-camera), many more
+    of them fall in the object's box than as given. ``plan`` runs this before
+    ``sensordata.check_pose``, which checks the pose against the cloud and would misread a
+    camera-frame cloud (as an inverted pose, or points behind the sensor)."""
     half = config.scene_grid.extent / 2
 
     def in_box(points: np.ndarray) -> int:
         return int(np.count_nonzero((np.abs(frame.to_object(points)) < half).all(axis=1)))
 
     as_given = in_box(scan.points)
-    moved = in_box(scan.points @ scan.matrix[:3, :3].T + scan.origin)
-    if moved >= 10 and moved > 2 * as_given:
-        raise PlanError(f"{scan.source}: the cloud looks like camera-frame points ({moved} of them fall in the object "
-                        f"box once moved by the pose, {as_given} as given): give world-frame points (transform the "
-                        "cloud by its camera-to-world pose)")
+    inverse = np.linalg.inv(scan.matrix)
+    by_pose = in_box(scan.points @ scan.matrix[:3, :3].T + scan.origin)
+    by_inverse = in_box(scan.points @ inverse[:3, :3].T + inverse[:3, 3])
+    if by_pose >= 10 and by_pose > 2 * as_given and by_pose >= by_inverse:
+        raise PlanError(f"{scan.source}: the cloud looks like camera-frame points ({by_pose} of them fall in the "
+                        f"object box once moved by the pose, {as_given} as given): give world-frame points, the cloud "
+                        "transformed by its camera-to-world pose (points @ pose[:3, :3].T + pose[:3, 3]); the pose "
+                        "stays as it is")
+    if by_inverse >= 10 and by_inverse > 2 * as_given:
+        raise PlanError(f"{scan.source}: the cloud looks like camera-frame points and the pose world-to-camera "
+                        f"({by_inverse} of them fall in the object box once moved by the pose's inverse, {as_given} "
+                        "as given): give world-frame points and the camera-to-world pose: with P = "
+                        "np.linalg.inv(pose), the cloud transformed as points @ P[:3, :3].T + P[:3, 3], and pose P")
 
 
 def grid_from_octomap(tree, frame: ObjectFrame, config: SimConfig, source: str) -> np.ndarray:
@@ -321,12 +330,20 @@ NETWORK_PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlann
 
 def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool = False,
                  config: SimConfig | None = None) -> GridPlanner:
-    """The planner of a checkpoint or ranker file (None: the released model, ``nbvtrain.release``);
+    """The planner of a checkpoint or ranker file (None: the released ranker, ``viewrank``, or where
+none is released the released score network; ``nbvtrain.release``);
     ``tta``: quarter-turn test-time averaging where it is exact (``Predictor``; refused elsewhere,
     and for a ranker); ``config``: the scene, whose candidate views a ranker ranks."""
+    from nbvtrain.release import NoReleasedModel, released_ranker
     from nbvtrain.viewrank import is_ranker_file, load_ranker
 
-    path = Path(checkpoint) if checkpoint is not None else released_checkpoint()
+    if checkpoint is not None:
+        path = Path(checkpoint)
+    else:  # the released ranker (ahead of the score network on the validation objects), else the score network
+        try:
+            path = released_ranker()
+        except NoReleasedModel:
+            path = released_checkpoint()
     if is_ranker_file(path):
         if tta:
             raise PlanError(f"--tta: {path} is a ranker of per-view features, which quarter turns leave unchanged "
@@ -428,7 +445,10 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
     frame = object_frame(center, size, up, config)
     taken, reach, octomap_info, cloud = None, None, None, None
     if scans is not None:
-        sensor_scans = read_scans(scans)
+        sensor_scans = read_scans(scans, check_poses=False)
+        for scan in sensor_scans:  # the frame first: the pose checks misread a camera-frame cloud
+            check_world_frame(scan, frame, config)
+            check_pose(scan)
         reach = config.sensor.far * frame.k if max_range is None else float(max_range)
         grid = grid_from_scans(sensor_scans, frame, config, max_range)
         taken = frame.to_object(np.array([scan.origin for scan in sensor_scans]))

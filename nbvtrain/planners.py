@@ -668,16 +668,17 @@ class RankerPlanner(Planner):
 
     name = "viewrank"
 
-    def __init__(self, model: str | Path, views: ViewSet, config: SimConfig):
+    def __init__(self, model: str | Path, views: ViewSet, config: SimConfig, name: str = "viewrank"):
         from nbvtrain.viewrank import load_ranker
 
+        self.name = name
         self.model, self.views, self.config = model, views, config
         self.ranker = load_ranker(model)
         self.ranker.check_scene(config, str(model))
 
     def __reduce__(self):
         """Pickled as its arguments: a worker process loads the model file itself."""
-        return type(self), (self.model, self.views, self.config)
+        return type(self), (self.model, self.views, self.config, self.name)
 
     def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
                          ) -> tuple[ViewSet, np.ndarray]:
@@ -763,17 +764,27 @@ class PlannerContext:
         except NoReleasedModel as reason:
             raise Skipped(str(reason)) from None
 
-    def ranker(self) -> Path:
-        """The viewrank planner's model file: given, else the released one; ``Skipped`` when neither."""
+    def rankers(self) -> list[Planner]:
+        """The viewrank planners: one per given model file (several: each named by its file's folder,
+        ``viewrank-FOLDER`` or the folder's own name when it starts with viewrank, to compare them),
+        else the released one; ``Skipped`` when neither."""
         from nbvtrain.release import NoReleasedModel, released_ranker
 
-        path = self.checkpoints.get("ranker")
-        if path is not None:
-            return Path(path)
-        try:
-            return released_ranker()
-        except NoReleasedModel as reason:
-            raise Skipped(str(reason)) from None
+        given = self.checkpoints.get("ranker")
+        if given is None:
+            try:
+                given = [released_ranker()]
+            except NoReleasedModel as reason:
+                raise Skipped(str(reason)) from None
+        paths = [Path(path) for path in ([given] if isinstance(given, (str, Path)) else given)]
+        planners = [RankerPlanner(path, self.views, self.config) for path in paths]
+        if len(planners) > 1:
+            for planner, path in zip(planners, paths):
+                folder = path.resolve().parent.name
+                planner.name = folder if folder.startswith("viewrank") else f"viewrank-{folder}"
+            if len({planner.name for planner in planners}) < len(planners):
+                raise ConfigError("--ranker: two model files in folders of one name; give files of distinct run folders")
+        return planners
 
     def learned(self, task: str) -> list[Planner]:
         config = self.config
@@ -822,8 +833,8 @@ register_planner("farthest", ("poses",), "the unscanned candidate view farthest 
     lambda context: [FarthestPlanner(context.views)])
 register_planner("viewrank", ("grid", "poses"), "the unscanned candidate view a ranker of per-view features scores "
                  "highest (`nbvtrain.viewrank`, default the released one): the rays of each view through the grid, its "
-                 "angles to the scans, the grid's summary; any view set", options=("--ranker FILE",))(
-    lambda context: [RankerPlanner(context.ranker(), context.views, context.config)])
+                 "angles to the scans, the grid's summary; any view set", options=("--ranker FILE[,FILE]: several, `viewrank-FOLDER`",))(
+    lambda context: context.rankers())
 for _metric, _what in (("occlusion-aware", "visibility-weighted entropy of every voxel its rays pass (Delmerico et al. "
                                            "2018)"),
                        ("unobserved-voxel", "visibility-weighted entropy of the unknown voxels its rays pass (Delmerico "

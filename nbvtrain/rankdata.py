@@ -222,6 +222,13 @@ def _sample_views(free: np.ndarray, gains: np.ndarray, sample: int, seed: int, m
     return np.sort(free[np.concatenate([keep, chosen])])
 
 
+def cache_path(cache: Path, digest: str, rays: tuple[int, int], sample: int, seed: int,
+               states: np.ndarray | None) -> Path:
+    """Where ``cached_rows`` keeps a shard's rows: named by its sha256 and every argument."""
+    chosen = "all" if states is None else hashlib.sha256(np.asarray(states, dtype=np.int64).tobytes()).hexdigest()[:12]
+    return Path(cache) / f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}-f{len(FEATURES)}-v2.npz"
+
+
 def cached_rows(path: Path, cache: Path | None, rays: tuple[int, int], sample: int, seed: int,
                 states: np.ndarray | None = None, digest: str | None = None) -> RankingData:
     """``shard_rows``, kept in ``cache`` (a folder; None: no cache) under the shard's sha256
@@ -229,11 +236,7 @@ def cached_rows(path: Path, cache: Path | None, rays: tuple[int, int], sample: i
     on the same shards reads them instead of walking every grid again."""
     if cache is None:
         return shard_rows(path, rays, sample, seed, states)
-    if digest is None:
-        digest = sha256_file(path)
-    chosen = "all" if states is None else hashlib.sha256(np.asarray(states, dtype=np.int64).tobytes()).hexdigest()[:12]
-    name = f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}-f{len(FEATURES)}-v2.npz"
-    target = Path(cache) / name
+    target = cache_path(cache, digest or sha256_file(path), rays, sample, seed, states)
     if target.is_file():
         try:
             with np.load(target, allow_pickle=False) as stored:

@@ -30,7 +30,7 @@ from nbvdata.config import ConfigError
 from nbvdata.manifest import mesh_split, open_verified
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
-from nbvtrain.rankdata import RankingData, cached_rows, concatenate
+from nbvtrain.rankdata import RankingData, cache_path, cached_rows, concatenate
 from nbvtrain.viewrank import RankerConfig, baseline_ratios, fit_gbm, fit_mlp
 
 DEFAULT_CACHE = Path("runs") / "viewrank-features"
@@ -128,6 +128,12 @@ def part_rows(parts: list[Part], config: RankerConfig, sample: int, cache: Path 
     return concatenate(out)
 
 
+def _cached(part: Part, cache: Path | None, config: RankerConfig, sample: int) -> bool:
+    """Whether ``part``'s rows lie in the feature cache already (then they are read, not computed)."""
+    return cache is not None and part.digest is not None and cache_path(cache, part.digest, config.rays, sample,
+                                                                        config.seed, part.states).is_file()
+
+
 def _rows_one_thread(part: Part, cache: Path | None, rays: tuple[int, int], sample: int, seed: int) -> RankingData:
     import numba
 
@@ -142,6 +148,8 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
     started = time.perf_counter()
     train_parts, val_parts, records = sources_parts(items, root, seed=config.seed)
     out.mkdir(parents=True, exist_ok=True)
+    hits = sum(_cached(part, cache, config, sample) for parts, sample in ((train_parts, config.sample), (val_parts, 0))
+               for part in parts)
     train = part_rows(train_parts, config, config.sample, cache, workers, progress, "train").labelled(target)
     val = part_rows(val_parts, config, 0, cache, workers, progress, "val").labelled(target)
     featured = time.perf_counter()
@@ -154,11 +162,12 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
     by_step = {int(step): val.gain_ratio(scores, val.steps == step) for step in np.unique(val.steps)}
     metrics = {"model": config.model, "file": path.name, "target": target,
                "val_gain_ratio": report.val_gain_ratio, "per_layout": report.per_layout,
-               "per_step": by_step, "baselines": baseline_ratios(val),
+               "per_step": by_step, "baselines": baseline_ratios(val), "diagnosis": diagnosis(val, scores),
                "train_states": len(train), "train_rows": int(len(train.gains)), "val_states": len(val),
                "val_rows": int(len(val.gains)), "feature_seconds": round(featured - started, 1),
+               "feature_cache_hits": [hits, len(train_parts) + len(val_parts)],
                "model_seconds": round(report.seconds, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1, allow_nan=True) + "\n")
+    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
     (out / "config.yaml").write_text(yaml.safe_dump({"ranker": _plain(asdict(config)), "target": target,
                                                      "sources": [str(item) for item in items]}, sort_keys=False))
     with (out / "history.csv").open("w", newline="") as handle:
@@ -169,6 +178,50 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
     return metrics
 
 
+def difficulty_thirds(data: RankingData) -> np.ndarray:
+    """(S,) int 0, 1, 2: each state's mesh in the hardest, middle or easiest third of the meshes, by
+    the mean observable coverage of its states after two scans (low: much surface still hidden
+    after two views; the oracle-run analogue of the benchmark's split by the oracle's AUC)."""
+    meshes, inverse = np.unique(data.mesh_ids, return_inverse=True)
+    second = data.steps == 3
+    coverage = np.array([data.coverage[(inverse == m) & second].mean() if ((inverse == m) & second).any()
+                         else data.coverage[inverse == m].mean() for m in range(len(meshes))])
+    order = np.argsort(coverage, kind="stable")
+    third = np.empty(len(meshes), dtype=np.int64)
+    third[order] = np.minimum(3 * np.arange(len(meshes)) // max(len(meshes), 1), 2)
+    return third[inverse]
+
+
+def diagnosis(data: RankingData, scores: np.ndarray | None = None) -> dict:
+    """Where a ranker can win, on validation states: per scan step and per difficulty third the
+    gain ratio of ``farthest``'s choice (1 - its top-1 regret against the oracle), of the best single
+    feature there and of ``scores`` (a ranker's); and every feature's gain ratio alone."""
+    from nbvdata.viewfeatures import FEATURES
+
+    columns = {name: data.features[:, k].astype(np.float64) for k, name in enumerate(FEATURES)}
+    signs = {name: 1.0 if data.gain_ratio(column) >= data.gain_ratio(-column) else -1.0
+             for name, column in columns.items()}
+    keep = (data.best > 0) & (data.sizes > 0)
+
+    def row(mask: np.ndarray) -> dict:
+        chosen = mask & keep
+        singles = {name: data.gain_ratio(signs[name] * column, mask) for name, column in columns.items()}
+        best = max(singles, key=lambda name: -np.inf if np.isnan(singles[name]) else singles[name])
+        out = {"states": int(chosen.sum()),
+               "farthest": float(np.mean(data.farthest[chosen] / data.best[chosen])) if chosen.any() else float("nan"),
+               "best_feature": best, "best_feature_ratio": singles[best]}
+        if scores is not None:
+            out["ranker"] = data.gain_ratio(scores, mask)
+        return out
+
+    thirds = difficulty_thirds(data)
+    return {"by_step": {int(step): row(data.steps == step) for step in np.unique(data.steps)},
+            "by_third": {name: row(thirds == k) for k, name in enumerate(("hard", "medium", "easy"))},
+            "by_layout": {layout: row(data.layouts == layout) for layout in sorted(set(data.layouts.tolist()))},
+            "features": {name: data.gain_ratio(signs[name] * column) for name, column in columns.items()},
+            "signs": signs}
+
+
 def _scene(path: Path) -> dict:
     """The grid of a shard's scene: {grid_size, grid_extent} (metres)."""
     from nbvdata.config import SimConfig, from_dict
@@ -176,6 +229,19 @@ def _scene(path: Path) -> dict:
     with Shard(path) as shard:
         grid = from_dict(SimConfig, shard.info.config or {}).scene_grid
     return {"grid_size": grid.size, "grid_extent": round(float(grid.extent), 9)}
+
+
+def _finite(value):
+    """``value`` with every NaN or infinite float as None (JSON has no NaN): a gain ratio of no state."""
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(item) for item in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
 
 
 def _plain(value):

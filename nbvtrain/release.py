@@ -30,9 +30,13 @@ import yaml
 from nbvdata.config import ConfigError
 from nbvdata.errors import UserError
 
-TASKS = ("scores", "regression")
+NETWORKS = ("scores", "regression")
+"""The released networks' tasks (their checkpoints: torch files, ``released_checkpoint``)."""
+TASKS = NETWORKS + ("viewrank",)
+"""Everything ``release`` writes, in the card's order: the networks, then the ranker (``released_ranker``)."""
 CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
 NOTES = "How they were chosen"  # the card's section of ``release(notes=...)``
+EVALUATIONS = "Evaluations"  # an earlier card's evaluation sections, kept by a release given no --evaluation
 KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
 
 
@@ -106,7 +110,8 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
     """Write the released checkpoints of ``runs`` (task -> run folder of nbvtrain fit, meaning its
     best.pt, or a checkpoint file of such a run), each named by its network, the reference answers
     and the model card (with ``notes``, markdown on how they were chosen, and the summary.md tables
-    of ``evaluations``, output folders of nbvtrain evaluate) into ``out``. A task released before
+    of ``evaluations``, output folders of nbvtrain evaluate; none given: the earlier card's
+    evaluation sections stay) into ``out``. A task released before
     into ``out`` and not now keeps its file and its section of the card; one released before under
     another network's name is replaced: (files written, files removed)."""
     import torch
@@ -114,7 +119,10 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
     from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
 
     chosen = {}  # every run read and checked before anything is written: a bad one leaves no --out behind
+    ranker = _ranker_release(runs["viewrank"]) if "viewrank" in runs else None
     for task, given in runs.items():
+        if task == "viewrank":
+            continue
         run, checkpoint = run_of(given)
         state = load_checkpoint(checkpoint, f"train one with nbvtrain fit --out {run}")
         if state.get("task") != task:
@@ -148,16 +156,88 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
         answers[task] = {"checkpoint": path.name, **reference_answer(path)}
         written.append(path)
         sections[task] = _card_section(task, run, checkpoint, state, path, data, history, lineage)
+    if ranker is not None:
+        source, metrics = ranker
+        path = out / ("viewrank.json" if source.suffix == ".json" else "viewrank.pt")
+        data = source.read_bytes()
+        path.write_bytes(data)
+        answers["viewrank"] = {"checkpoint": path.name, **ranker_reference_answer(path)}
+        written.append(path)
+        sections["viewrank"] = _ranker_section(source, path, metrics)
     answers = {task: answers[task] for task in TASKS if task in answers}  # the card's order, whatever came last
     (out / REFERENCE).write_text(json.dumps(answers, indent=1, allow_nan=False) + "\n")
     card = out / CARD
     card.write_text(_card([sections[task] for task in TASKS if task in sections], answers, evaluations, torch.__version__,
-                          packaged=out.resolve() == released_folder().resolve(), notes=notes))
+                          packaged=out.resolve() == released_folder().resolve(), notes=notes,
+                          kept=None if evaluations else earlier.get(EVALUATIONS)))
     kept = {path.name for path in written}
     superseded = [out / before[task] for task in runs if task in before and before[task] not in kept]
     for path in superseded:
         path.unlink(missing_ok=True)
     return written + [out / REFERENCE, card], superseded
+
+
+def _ranker_release(given: Path) -> tuple[Path, dict]:
+    """(model file, its run's metrics.json) of ``--viewrank``: a run folder of ``nbvtrain fit --model
+    viewrank-*`` or its model file; the file is loaded (refused in one line if it is no ranker)."""
+    from nbvtrain.viewrank import load_ranker
+
+    folder = given if given.is_dir() else given.parent
+    model = given
+    if given.is_dir():
+        found = [folder / name for name in ("viewrank.json", "viewrank.pt") if (folder / name).is_file()]
+        if not found:
+            raise ConfigError(f"{given}: no viewrank.json or viewrank.pt in it: pass a run folder of nbvtrain fit "
+                              "--model viewrank-gbm|viewrank-mlp")
+        model = found[0]
+    load_ranker(model)
+    try:
+        metrics = json.loads((folder / "metrics.json").read_text())
+    except (OSError, ValueError) as error:
+        raise ConfigError(f"{folder / 'metrics.json'}: cannot be read ({type(error).__name__}): pass the run folder "
+                          "nbvtrain fit wrote the ranker into") from None
+    return model, metrics
+
+
+def ranker_reference_answer(path: Path) -> dict:
+    """What the ranker in ``path`` answers for ``reference_grid()`` with nothing scanned, among the
+    default scene's candidate views: the chosen view, its score and the runner-up's."""
+    from nbvdata.config import SimConfig
+    from nbvdata.views import view_sphere
+    from nbvtrain.viewrank import load_ranker
+
+    config = SimConfig()
+    scores = load_ranker(path).view_scores(reference_grid(), np.zeros((0, 3)), view_sphere(config.views), config)
+    order = np.argsort(-scores, kind="stable")
+    return {"view": int(order[0]), "score": round(float(scores[order[0]]), 5), "runner_up": int(order[1]),
+            "runner_up_score": round(float(scores[order[1]]), 5)}
+
+
+def _ranker_section(source: Path, path: Path, metrics: dict) -> str:
+    """The card's section on the released ranker, from its run's metrics.json."""
+    training = metrics.get("sources", [])
+    data = ", ".join(f"{record['name']} {record['version']}" for record in training if "name" in record)
+    split = next((record["split_from"] for record in training if "split_from" in record), "the folders' mesh split")
+    layouts = ", ".join(f"{layout} {ratio:.3f}" for layout, ratio in metrics.get("per_layout", {}).items())
+    far = metrics.get("baselines", {}).get("farthest (its own choice)", float("nan"))
+    lines = [f"## viewrank: {metrics['model']} (`{path.name}` beside this card, {path.stat().st_size / 2 ** 20:.1f} MiB)",
+             "",
+             f"- A ranker of candidate views from per-view features (`nbvtrain.viewrank`), any view set; released from "
+             f"`{_shown(source)}`.",
+             f"- Data: {data or 'shard folders'}; one mesh split for all ({split}): "
+             f"{metrics['train_states']} training states ({metrics['train_rows']} rows), {metrics['val_states']} "
+             f"validation states (every unscanned view); labels: {metrics['target']} gains.",
+             f"- Time: features {metrics['feature_seconds'] / 60:.1f} min{_cache_words(metrics)}, model "
+             f"{metrics['model_seconds'] / 60:.1f} min.",
+             f"- Validation gain ratio (the chosen view's gain over the best's): {metrics['val_gain_ratio']:.3f} "
+             f"(farthest {far:.3f}); per view set: {layouts}.", ""]
+    return "\n".join(lines)
+
+
+def _cache_words(metrics: dict) -> str:
+    """' (k of n shards read from the feature cache)' where the fit read some, else ''."""
+    hits, total = metrics.get("feature_cache_hits", [0, 0])
+    return f" ({hits} of {total} shards' features read from the feature cache of an earlier fit)" if hits else ""
 
 
 def run_of(given: Path) -> tuple[Path, Path]:
@@ -183,6 +263,9 @@ def _card_sections(card: Path) -> dict[str, str]:
         key = title.split(":", 1)[0] if ":" in title else title
         if key in (*TASKS, NOTES):
             sections[key] = "## " + block.strip("\n") + "\n"
+        elif title.startswith("Evaluation: "):
+            sections.setdefault(EVALUATIONS, "")
+            sections[EVALUATIONS] += "## " + block.strip("\n") + "\n\n"
     return sections
 
 
@@ -295,7 +378,7 @@ def _evaluate_arguments(path: Path) -> list[str]:
 
 
 def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_version: str, packaged: bool,
-          notes: str | None = None) -> str:
+          notes: str | None = None, kept: str | None = None) -> str:
     """The model card; ``packaged``: written into the package's folder, whose models commands use
     by default (elsewhere, they are used with --checkpoint)."""
     from nbvtrain.train import cpu_name
@@ -304,10 +387,11 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
            "the candidate-score network (use a file here with `--checkpoint`, or `--score-checkpoint` for "
            "`nbvtrain evaluate`)")
     lines = ["# Model card: the released next-best-view networks", "",
-             f"Two networks: {use}, and the paper's regression network for comparison. Each section names its "
-             "data, settings, training time and the machine it was trained on. Weights are float16 (loaded as "
-             "float32).", "",
-             f"Released on: {cpu_name()}, {os.cpu_count()} cores; "
+             f"The models: {use}, the paper's regression network for comparison, and the ranker of candidate views "
+             "from per-view features (`viewrank`, where released). Each section names its data, settings and "
+             "training time. Network weights are float16 (loaded as float32).", "",
+             f"This card written on: {cpu_name()}, {os.cpu_count()} cores (each section names the machine its model was "
+             "trained on where it is known); "
              f"torch {torch_version}, Python {platform.python_version()}.", ""]
     lines += sections
     if notes:
@@ -316,6 +400,8 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
               "For `nbvtrain.release.reference_grid()` with nothing scanned (tests/test_release.py checks that the "
               "installed package reproduces them):", "", "```json", json.dumps(answers, indent=1, allow_nan=False),
               "```", ""]
+    if kept:  # the earlier card's evaluations, as they were
+        lines += [kept.strip("\n"), ""]
     for evaluation in evaluations:
         summary = (evaluation / "summary.md").read_text()
         lines += [f"## Evaluation: {summary.splitlines()[0].lstrip('# ')} (`{evaluation.name}`)", "",

@@ -139,7 +139,7 @@ class ViewRanker:
         head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": self.features,
                 "rays": list(self.rays), "scene": self.scene, "training": self.training}
         if self.booster is not None:
-            text = json.dumps(head | {"lightgbm": self.booster.model_to_string()}, indent=1)
+            text = json.dumps(head | {"lightgbm": self.booster.model_to_string()}, indent=1, allow_nan=False)
             write_atomic(Path(path), text)
             return
         import torch
@@ -150,6 +150,19 @@ class ViewRanker:
         partial = path.with_name(path.name + ".partial")
         torch.save(state, partial)
         partial.replace(path)
+
+
+def env_choice(ranker: "ViewRanker", views: ViewSet, config: SimConfig):
+    """``choose(observation, mask) -> view``: the ranker as a policy on the Gymnasium environment's
+    observation (``nbvdata.env``: ``grid`` and ``taken``, over the environment's ``views`` in its scene
+    ``config``), the best-ranked view among those ``mask`` (V,) bool allows (None: every unscanned one)."""
+    def choose(observation: dict, mask: np.ndarray | None = None) -> int:
+        taken = np.asarray(observation["taken"], dtype=bool)
+        scores = ranker.view_scores(np.asarray(observation["grid"], dtype=np.float32), views.positions[taken], views,
+                                    config)
+        allowed = ~taken if mask is None else np.asarray(mask, dtype=bool)
+        return int(np.argmax(np.where(allowed, scores, -np.inf))) if allowed.any() else 0
+    return choose
 
 
 def is_ranker_file(path: str | Path) -> bool:

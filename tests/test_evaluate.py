@@ -15,7 +15,7 @@ import torch
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import ConfigError, SimConfig, load_config
 from nbvdata.episode import Reconstruction, ViewCache, scene_rng, start_view
-from nbvdata.sources import MeshSource
+from nbvdata.sources import MeshSource, mesh_sources
 from nbvdata.scene import Scene
 from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.shards import Shard, shard_files
@@ -86,11 +86,12 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
                  "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
-                 str(checkpoints["nbvscore-3"]), "--scans", "5", "--starts", "2",
+                 str(checkpoints["nbvscore-3"]), "--scans", "5", "--random-starts", "2",
                  "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
-    assert "48 reconstructions" in capsys.readouterr().out
+    assert "54 reconstructions" in capsys.readouterr().out
     rows = _rows(out / "coverage.csv")
-    planners = ["scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "farthest"]
+    planners = ["scores", "regression", "classification", "infogain", "oracle", "setcover", "random", "farthest",
+                "viewrank"]
     assert len(rows) == 2 * len(planners) * 3 * 5  # meshes x planners x starts x scans
     assert {r["planner"] for r in rows} == set(planners) and {r["mesh"] for r in rows} == {"mug", "ring"}
     runs: dict[tuple, list[dict]] = {}
@@ -108,7 +109,8 @@ def test_full_command_on_two_meshes(meshes, checkpoints, tmp_path, capsys):
         oracle = float(runs[(mesh, "oracle", start)][-1]["coverage"])
         assert oracle >= float(runs[(mesh, "random", start)][-1]["coverage"])
     summary = (out / "summary.md").read_text()
-    assert "| object | scores | regression | classification | infogain | oracle | setcover | random | farthest |" in summary
+    assert ("| object | scores | regression | classification | infogain | oracle | setcover | random | farthest | "
+            "viewrank |") in summary
     assert "| **mean** |" in summary and "**" in summary.split("| mug |")[1].splitlines()[0]
     assert "| infogain |" in summary.split("Time per NBV")[1]
     assert "| planner | decisions | overlap under the rule | no valid candidate view |" in summary
@@ -135,13 +137,13 @@ def test_two_workers_give_the_same_outputs_as_one(meshes, checkpoints, tmp_path,
             out = tmp_path / workers
             assert main(["evaluate", "--meshes", str(meshes), "--checkpoint", str(checkpoints["nbvnet-3-3"]),
                          "--class-checkpoint", str(checkpoints["nbvnet-class"]), "--score-checkpoint",
-                         str(checkpoints["nbvscore-3"]), "--scans", "4", "--starts", "1",
+                         str(checkpoints["nbvscore-3"]), "--scans", "4", "--random-starts", "1",
                          "--config", str(SMOKE), "--out", str(out), "--no-progress", "--workers", workers]) == 1
             outputs[workers] = _without_timings(out) + ((out / "failures.tsv").read_text(),)
     finally:
         (meshes / "broken.obj").unlink()
     rows = outputs["1"][0]
-    assert len(rows) == 2 * 8 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}  # meshes x planners x starts x scans
+    assert len(rows) == 2 * 9 * 2 * 4 and {r["mesh"] for r in rows} == {"mug", "ring"}  # meshes x planners x starts x scans
     assert outputs["2"] == outputs["1"]
 
 
@@ -163,6 +165,54 @@ def test_planners_without_checkpoints_are_skipped_and_errors_exit_2(meshes, chec
     with pytest.raises(SystemExit) as done:  # refused by the option's type, before anything runs
         main(["evaluate", "--meshes", str(meshes), "--out", str(out), "--scans", "1"])
     assert done.value.code == 2 and "argument --scans: must be a whole number >= 2, not '1'" in capsys.readouterr().err
+
+
+def test_random_starts_count_besides_the_front_one_and_starts_is_refused_in_one_line(meshes, tmp_path, capsys):
+    """evaluate --random-starts K runs K + 1 starts (front + K random); --starts, which benchmark uses for
+    every start counted, is refused on evaluate in one line naming --random-starts."""
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(meshes / "mug.obj"), "--planners", "random", "--scans", "2",
+                 "--random-starts", "1", "--no-floors", "--config", str(SMOKE), "--out", str(out),
+                 "--no-progress"]) == 0
+    assert {row["start"] for row in _rows(out / "coverage.csv")} == {"0", "1"}
+    assert "random_starts: 1" in (out / "config.yaml").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as done:
+        main(["evaluate", "--meshes", str(meshes), "--starts", "1"])
+    error = capsys.readouterr().err.strip()
+    assert done.value.code == 2 and len(error.splitlines()) == 1
+    assert "--starts 1: evaluate's option is --random-starts K" in error and "--starts 1 was --random-starts 1" in error
+
+
+def shapenet_like(folder: Path) -> Path:
+    """Two meshes of one file name in their own folders (ShapeNet's CAT/ID/models/model_normalized.obj)
+    and one of its own name."""
+    for shape, model in (("mug", "02/aa/models"), ("ring", "02/bb/models")):
+        (folder / model).mkdir(parents=True)
+        BUILTIN_SHAPES[shape]().export(folder / model / "model_normalized.obj")
+    BUILTIN_SHAPES["pill"]().export(folder / "pill.obj")
+    return folder
+
+
+def test_meshes_of_one_file_name_are_named_by_their_path(tmp_path):
+    sources, _ = mesh_sources(shapenet_like(tmp_path))
+    assert sorted(source.title for source in sources) == ["02/aa/models/model_normalized.obj",
+                                                          "02/bb/models/model_normalized.obj", "pill"]
+    assert {source.name for source in sources} == {"model_normalized.obj", "pill.obj"}  # what shards record
+    listed = tmp_path / "list.txt"
+    listed.write_text("02/aa/models/model_normalized.obj\npill.obj\n")
+    assert [source.title for source in mesh_sources(listed)[0]] == ["model_normalized", "pill"]  # no collision
+
+
+def test_evaluate_tells_meshes_of_one_file_name_apart(tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--meshes", str(shapenet_like(tmp_path / "meshes")), "--planners", "farthest",
+                 "--scans", "2", "--no-floors", "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
+    named = {"02/aa/models/model_normalized.obj", "02/bb/models/model_normalized.obj", "pill"}
+    assert {row["mesh"] for row in _rows(out / "coverage.csv")} == named
+    summary = (out / "summary.md").read_text()
+    assert all(f"| {name} |" in summary for name in named) and "3 objects" in summary
+    assert all((out / "plots" / f"{name}.png").is_file() for name in named)
 
 
 def test_a_broken_mesh_is_reported_and_the_others_go_on(meshes, tmp_path, capsys):
@@ -251,9 +301,13 @@ def test_robot_planners_never_read_the_mesh(config, scene, checkpoints, meshes, 
     """Every registered planner: those that do not read the scene (``PlannerKind.reads``) are not
     privileged and never touch the simulation while they decide; those that do are privileged."""
     planners, skipped = build_planners(list(PLANNERS), config, scene.views, _learned(checkpoints))
-    assert not skipped and {p.name.split("-")[0] for p in planners} == set(PLANNERS)
+
+    def kind(planner) -> str:  # "scores", "hybrid-w1" -> "hybrid", "proximity-count"
+        return max((name for name in PLANNERS if planner.name == name or planner.name.startswith(name + "-")), key=len)
+
+    assert not skipped and {kind(p) for p in planners} == set(PLANNERS)
     for planner in planners:
-        assert planner.privileged == ("scene" in PLANNERS[planner.name.split("-")[0]].reads), planner.name
+        assert planner.privileged == ("scene" in PLANNERS[kind(planner)].reads), planner.name
     report = _run_guarded(config, scene, planners, meshes, monkeypatch)
     assert len(report.rows) == len(planners) * 3 and not report.failures
     caught = _run_guarded(config, scene, [Cheat(scene)], meshes, monkeypatch)  # the mesh fails, the run goes on
@@ -339,7 +393,7 @@ def test_evaluation_starts_are_not_generation_starts(meshes, tmp_path):
             generated.setdefault(mesh, set()).update(shard["last_view"][first].tolist())
     assert {mesh: len(views) for mesh, views in generated.items()} == {"mug": 3, "ring": 3}  # runs_per_mesh
     out = tmp_path / "eval"
-    assert main(["evaluate", "--meshes", str(meshes), "--planners", "random", "--scans", "2", "--starts", "8",
+    assert main(["evaluate", "--meshes", str(meshes), "--planners", "random", "--scans", "2", "--random-starts", "8",
                  "--config", str(SMOKE), "--out", str(out), "--no-progress"]) == 0
     starts = {}
     for row in _rows(out / "coverage.csv"):

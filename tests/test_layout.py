@@ -1,7 +1,8 @@
 """The project's shape: every module in one stage of the one-way flow (``STAGES``, the table
 docs/design.md states), importing only its own stage and earlier ones; nbvtrain's learning
 modules read nbvdata only through its schema side; nbvdata never imports torch; no private name
-crosses into nbvtrain, the benchmarks or the examples; pytest runs quietly."""
+crosses into nbvtrain, the benchmarks, the recipes or the examples; benchmarks/ holds measurements
+and recipes/ the one-off recipe, each script cited; pytest runs quietly."""
 
 import ast
 import re
@@ -105,7 +106,8 @@ def test_no_private_name_crosses_into_nbvtrain_the_benchmarks_or_the_examples():
     """No ``from nbvdata.x import _name`` and no ``module._name`` of a project module imported as a
     name, outside the package that defines it."""
     crossings = []
-    files = [*(ROOT / "nbvtrain").glob("*.py"), *(ROOT / "benchmarks").glob("*.py"), *(ROOT / "examples").glob("*.py")]
+    files = [*(ROOT / "nbvtrain").glob("*.py"), *(ROOT / "benchmarks").glob("*.py"), *(ROOT / "recipes").glob("*.py"),
+             *(ROOT / "examples").glob("*.py")]
     for path in files:
         tree = ast.parse(path.read_text())
         own = "nbvtrain" if path.parent.name == "nbvtrain" else None
@@ -196,3 +198,30 @@ def test_the_documented_import_paths_still_work():
     assert scripts == {"nbvdata": "nbvdata.cli:main", "nbvtrain": "nbvtrain.cli:main"}
     (policy,) = importlib.metadata.entry_points(group="nbvdata.policies", name="checkpoint")
     assert policy.load().__name__ == "CheckpointPolicy"
+
+
+def _citing_files() -> dict[Path, str]:
+    """What may cite a script, by path: the README, the docs, the tests, the released models' card,
+    the configs, the packages and the scripts of benchmarks/ and recipes/."""
+    paths = [ROOT / "README.md", ROOT / "nbvtrain" / "released" / "MODEL_CARD.md", *(ROOT / "docs").rglob("*.md"),
+             *(ROOT / "tests").glob("*.py"), *(ROOT / "configs").glob("*"), *(ROOT / "nbvdata").glob("*.py"),
+             *(ROOT / "nbvtrain").glob("*.py"), *(ROOT / "benchmarks").glob("*"), *(ROOT / "recipes").glob("*")]
+    return {path: path.read_text() for path in paths if path.is_file()}
+
+
+def test_benchmarks_hold_measurements_and_recipes_the_one_off_recipe():
+    """Issue 58: benchmarks/ held the one-off recipe of issue 27's selection (selection.sh and the
+    scripts it and docs/selection.md run, which write or read runs/selection) beside the
+    measurements a maintainer reruns. No benchmark belongs to that recipe; recipes/README.md names
+    every script of recipes/; every script of both folders is cited by another file (one that
+    nothing cites is deleted, not kept)."""
+    benchmarks = sorted(path for path in (ROOT / "benchmarks").iterdir() if path.suffix in (".py", ".sh"))
+    recipes = sorted(path for path in (ROOT / "recipes").iterdir() if path.suffix in (".py", ".sh"))
+    assert [path.name for path in benchmarks if "runs/selection" in path.read_text()] == []
+    readme = (ROOT / "recipes" / "README.md").read_text()
+    assert recipes and [path.name for path in recipes if f"`{path.name}`" not in readme] == []
+    files = _citing_files()
+    uncited = [f"{path.parent.name}/{path.name}" for path in benchmarks + recipes
+               if not any(f"{path.parent.name}/{path.name}" in text or f'"{path.parent.name}" / "{path.name}"' in text
+                          for other, text in files.items() if other != path)]
+    assert uncited == []

@@ -15,7 +15,7 @@ from nbvdata.config import SimConfig, load_config
 from nbvdata.grid import OccupancyGrid
 from nbvdata.sensor import MeshScanner
 from nbvdata.shapes import builtin_object
-from nbvdata.views import Pose, view_sphere
+from nbvdata.views import Pose, scanned_views, view_sphere
 from nbvtrain.cli import main
 from nbvtrain.config import TrainConfig
 from nbvtrain.models import build_model
@@ -398,11 +398,17 @@ def test_bad_input_is_one_line_and_exit_2(case, scene, checkpoint, tmp_path, cap
     _one_line_error(capsys, *expected)
 
 
-def test_without_a_checkpoint_it_uses_the_released_score_network(scene, tmp_path, capsys):
+def test_without_a_checkpoint_it_uses_the_released_ranker_and_the_score_network_is_a_flag_away(scene, tmp_path,
+                                                                                                  capsys):
     scans, poses, _ = scene
-    assert main(["plan", "--scans", str(_write_scans(tmp_path, scans, poses)), "--center", "0,0,0"]) == 0
+    scans_file = str(_write_scans(tmp_path, scans, poses))
+    assert main(["plan", "--scans", scans_file, "--center", "0,0,0"]) == 0
     answer = json.loads(capsys.readouterr().out)
-    assert answer["model"] == "nbvscore-fc3"
+    taken = scanned_views(np.array([pose.position for pose in poses]), view_sphere(SimConfig().views).unit_positions)
+    assert answer["model"] == "viewrank-gbm" and not taken[answer["view"]]
+    assert main(["plan", "--scans", scans_file, "--center", "0,0,0", "--checkpoint",
+                 str(ROOT / "nbvtrain" / "released" / "nbvscore-fc3.pt")]) == 0
+    assert json.loads(capsys.readouterr().out)["model"] == "nbvscore-fc3"
 
 
 def _score_checkpoint(path: Path) -> Path:
@@ -457,12 +463,13 @@ def test_the_picture_names_the_candidate_view_and_counts_the_scans(scene, checkp
     view = scored.to_dict()["view"]
     assert view not in VIEWS
     texts = _legend(scored)
-    assert f"next-best-view (view {view})" in texts and f"scans taken ({len(VIEWS)})" in texts, texts
+    scans_taken = f"scans taken ({len(VIEWS)}, numbered in scan order)"
+    assert f"next-best-view (view {view})" in texts and scans_taken in texts, texts
     assert "candidate views (500)" in texts
     regressed = plan(np.zeros(3), scans=scans_file, checkpoint=checkpoint)
     assert "view" not in regressed.to_dict() and "scanned" not in regressed.to_dict()
     texts = _legend(regressed)
-    assert "next-best-view" in texts and f"scans taken ({len(VIEWS)})" in texts and "candidate views (500)" in texts
+    assert "next-best-view" in texts and scans_taken in texts and "candidate views (500)" in texts
     pyoctomap = pytest.importorskip("pyoctomap", reason="pip install pyoctomap (a test dependency)")
     tree = pyoctomap.OcTree(0.005)
     for scan in scans:
@@ -510,6 +517,9 @@ def test_spread_takes_the_unscanned_view_the_evaluations_rule_takes(scene, check
     assert main(["plan", "--octomap", str(bt), "--center", "0,0,0", "--spread", "1"]) == 2
     _one_line_error(capsys, "--spread", "give --scans")
     assert main(["plan", "--scans", str(scans_file), "--center", "0,0,0", "--spread", "1"]) == 2
+    _one_line_error(capsys, "--spread: viewrank-gbm scores candidate views", "drop --spread")  # the default: the ranker
+    assert main(["plan", "--scans", str(scans_file), "--center", "0,0,0", "--spread", "1", "--checkpoint",
+                 str(ROOT / "nbvtrain" / "released" / "nbvscore-fc3.pt")]) == 2
     _one_line_error(capsys, "--spread: nbvscore-fc3 scores candidate views", "drop --spread")
     with pytest.raises(SystemExit):
         main(["plan", *map(str, argv), "--spread=-1"])

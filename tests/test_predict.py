@@ -423,3 +423,30 @@ def test_predict_names_a_file_that_is_no_plain_array_and_never_unpickles_it(kind
     err = _one_line_error(capsys, f"nbvtrain predict: error: {path}: {NPY_JUNK[kind]}")
     assert "allow_pickle" not in err and "pickle=" not in err
     assert not (tmp_path / "ran").exists()
+
+
+def test_predict_says_what_a_file_that_is_no_grid_and_no_shard_is_not(tmp_path, capsys):
+    """Issue 58: any file but a .npy (a text file, an array's raw bytes) was "not a readable HDF5
+    file (truncated or corrupt?): delete it and run nbvdata generate again". It is told what it
+    is not and what it is, and deleting is the fix only for an HDF5 file that is damaged; a .npy
+    array under another name is read as the grid it is."""
+    import h5py
+
+    checkpoint = _checkpoint(tmp_path / "best.pt")
+    grid = np.full((32, 32, 32), 0.5, dtype=np.float32)
+    for name, data, kind in (("notes.txt", b"scanned the mug twice\n", "a text file"),
+                             ("grid.bin", grid.tobytes(), "other bytes"), ("notes.h5", b"not a shard\n", "a text file"),
+                             ("empty.h5", b"", "an empty file")):
+        (tmp_path / name).write_bytes(data)
+        assert main(["predict", str(tmp_path / name), "--checkpoint", str(checkpoint)]) == 2
+        err = _one_line_error(capsys, f"{tmp_path / name}: not a shard (.h5) or a .npy grid ({kind}): ", "np.save")
+        assert "delete" not in err and "HDF5" not in err, err
+    with (tmp_path / "saved.bin").open("wb") as handle:
+        np.save(handle, grid)
+    assert main(["predict", str(tmp_path / "saved.bin"), "--checkpoint", str(checkpoint)]) == 0
+    assert '"position"' in capsys.readouterr().out
+    with h5py.File(tmp_path / "cut.h5", "w") as shard:
+        shard["grids"] = np.zeros((64, 32, 32, 32), dtype=np.uint8)
+    (tmp_path / "cut.h5").write_bytes((tmp_path / "cut.h5").read_bytes()[:100_000])
+    assert main(["predict", str(tmp_path / "cut.h5"), "--checkpoint", str(checkpoint)]) == 2
+    _one_line_error(capsys, f"{tmp_path / 'cut.h5'}: not a readable HDF5 file (truncated or corrupt?): delete it")

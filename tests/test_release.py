@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
-from nbvtrain.release import (CARD, REFERENCE, TASKS, reference_answer, reference_grid, released_checkpoint,
-                              released_files)
+from nbvtrain.release import (CARD, NETWORKS, REFERENCE, TASKS, ranker_reference_answer, reference_answer,
+                              reference_grid, released_checkpoint, released_files, released_ranker)
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDER = ROOT / "nbvtrain" / "released"
@@ -26,9 +26,15 @@ def test_the_released_files_are_in_the_package_and_small():
     assert sorted(released) == sorted(TASKS), "run nbvtrain release (README: The released models)"
     files = [FOLDER / name for name in released.values()]
     assert all(path.is_file() for path in files), "run nbvtrain release (README: The released models)"
-    assert sorted(FOLDER.glob("*.pt")) == sorted(files)  # nothing else ships
+    assert sorted([*FOLDER.glob("*.pt"), FOLDER / "viewrank.json"]) == sorted(files)  # nothing else ships
     assert sum(path.stat().st_size for path in files) <= 25 * 10 ** 6
+    from nbvtrain.viewrank import load_ranker
+
+    ranker = load_ranker(released_ranker())
+    assert ranker.kind == "viewrank-gbm" and ranker.scene["grid_size"] == 32
     for task, name in released.items():
+        if task not in NETWORKS:
+            continue
         state = torch.load(FOLDER / name, weights_only=True)
         assert state["task"] == task and "optimizer" not in state and name == f"{state['model']}.pt"
         assert all(value.dtype == torch.float16 for value in state["state_dict"].values() if value.is_floating_point())
@@ -40,15 +46,19 @@ def test_the_card_names_the_data_and_the_figures():
     path = ROOT / "manifests" / "train-meshes-1.2.0.json"  # both networks' data (README)
     manifest = json.loads(path.read_text())
     sha = hashlib.sha256(path.read_bytes()).hexdigest()
-    assert card.count(f"{manifest['name']} {manifest['version']} (manifest sha256 {sha})") == len(TASKS)
-    for phrase in ("gain ratio", "min of wall time", "## Evaluation", "| object | scores |", "Released on:",
+    assert card.count(f"{manifest['name']} {manifest['version']} (manifest sha256 {sha})") == len(NETWORKS)
+    assert "## viewrank: viewrank-gbm" in card and "layouts-tammes-128 1.0.0" in card
+    for phrase in ("gain ratio", "min of wall time", "## Evaluation", "| object | scores |", "This card written on:",
                    "## How they were chosen", "validation objects"):
         assert phrase in card
 
 
 def test_the_released_weights_reproduce_the_recorded_answers():
     recorded = json.loads((FOLDER / REFERENCE).read_text())
-    for task in TASKS:
+    ranker = ranker_reference_answer(released_ranker())
+    assert ranker["view"] == recorded["viewrank"]["view"]
+    assert ranker["score"] == pytest.approx(recorded["viewrank"]["score"], abs=1e-4)
+    for task in NETWORKS:
         answer = reference_answer(released_checkpoint(task))
         np.testing.assert_allclose(answer["direction"], recorded[task]["direction"], atol=1e-4)
         if task == "scores":
@@ -65,13 +75,15 @@ def test_an_installed_package_loads_them(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     code = ("import json, sys, nbvtrain.release as r\n"
             "assert r.__file__.startswith(sys.argv[1]), r.__file__\n"
-            "print(json.dumps({t: r.reference_answer(r.released_checkpoint(t)) for t in r.TASKS}))\n")
+            "answers = {t: r.reference_answer(r.released_checkpoint(t)) for t in r.NETWORKS}\n"
+            "print(json.dumps(answers | {'viewrank': r.ranker_reference_answer(r.released_ranker())}))\n")
     done = subprocess.run([sys.executable, "-c", code, str(target)], capture_output=True, text=True, timeout=300,
                           cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr[-2000:]
     answers, recorded = json.loads(done.stdout), json.loads((FOLDER / REFERENCE).read_text())
     assert answers["scores"]["view"] == recorded["scores"]["view"]
     np.testing.assert_allclose(answers["regression"]["direction"], recorded["regression"]["direction"], atol=1e-4)
+    assert answers["viewrank"]["view"] == recorded["viewrank"]["view"]
 
 
 def test_commands_use_the_released_model_without_a_checkpoint(tmp_path, capsys):
@@ -129,7 +141,7 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert "min of wall time on cpu: " in card_section(out / CARD, "scores")  # the machine it was trained on
     assert "## How they were chosen\n\nChosen on the validation objects in closed loop." in card
     assert card_section(out / CARD, "regression") == regression_section
-    assert list(json.loads((out / REFERENCE).read_text())) == list(TASKS)  # the card's order, scores released last
+    assert list(json.loads((out / REFERENCE).read_text())) == list(NETWORKS)  # the card's order, scores released last
     assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == str(snapshot)
     assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-3"]), "--out", str(out)]) == 0
     card = (out / CARD).read_text()

@@ -220,3 +220,20 @@ def test_lightgbm_loads_torch_s_openmp_when_the_system_has_none(monkeypatch):
     monkeypatch.setattr(ctypes, "CDLL", cdll)
     module._preload_libgomp()
     assert loaded and loaded[0].endswith("torch/lib/libgomp.so.1")
+
+
+def test_the_ranker_plays_the_environment_and_never_repeats(rankers):
+    from nbvdata.env import ReconstructEnv
+    from nbvtrain.viewrank import env_choice
+
+    env = ReconstructEnv(config=SMOKE)
+    choose = env_choice(load_ranker(rankers["viewrank-gbm"]), env.views, env.config)
+    observation, info = env.reset(seed=0)
+    chosen = []
+    for _ in range(3):
+        view = choose(observation, info["action_mask"])
+        assert info["action_mask"][view] and view not in chosen
+        chosen.append(view)
+        observation, _, terminated, truncated, info = env.step(view)
+        if terminated or truncated:
+            break
