@@ -93,7 +93,11 @@ METRICS = {  # planner name -> the column it maximises
 """The hand-crafted metrics as planners: each takes the unscanned view with the highest value of its column."""
 
 BUNDLE = (16, 12)
-"""Default rays per view (width, height) of the coarse bundle."""
+"""Default rays per view (width, height) of the coarse bundle: the ranker's features."""
+METRIC_BUNDLE = (32, 24)
+"""Rays per view of the hand-crafted metrics' planners: the sparse counts (rear side, proximity)
+follow the sensor's full image more closely with more rays (``benchmarks/viewfeatures.py``), and
+every metric of 500 views still takes under 20 ms on one core."""
 PROXIMITY = 5
 """Proximity count's reach: unknown voxels d < 5 voxels from an occupied one count 5 - d."""
 NEAR = 2

@@ -632,7 +632,7 @@ class InfoGainPlanner(Planner):
 class MetricPlanner(Planner):
     """A hand-crafted volumetric metric over every candidate view (``nbvdata.viewfeatures.METRICS``:
     Delmerico et al. 2018's and Vasquez-Gomez et al. 2014's, from one walk of the grid over each
-    view's coarse ray bundle): the unscanned view with the highest value (the lowest index among
+    view's coarse ray bundle, ``METRIC_BUNDLE`` rays): the unscanned view with the highest value (the lowest index among
     equals; each scanned pose marks its nearest view). No overlap rule, as in their planners."""
 
     def __init__(self, name: str, views: ViewSet, config: SimConfig):
@@ -643,10 +643,11 @@ class MetricPlanner(Planner):
 
     def values(self, observation: Observation) -> np.ndarray:
         """(V,) the metric of every candidate view at the observation."""
-        from nbvdata.viewfeatures import view_features
+        from nbvdata.viewfeatures import METRIC_BUNDLE, view_features
         from nbvtrain.rankdata import bundle_for
 
-        features = view_features(observation.probabilities, observation.positions, bundle_for(self.views, self.config))
+        features = view_features(observation.probabilities, observation.positions,
+                                 bundle_for(self.views, self.config, METRIC_BUNDLE))
         return features[:, self.column].astype(np.float64)
 
     def candidate_scores(self, observation: Observation, truth: Reconstruction | None = None
