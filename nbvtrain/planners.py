@@ -34,7 +34,12 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   from the grid: of its rays that reach the box and meet a non-free voxel there, the share whose
   first such voxel is known occupied (surface seen before) must be >= ``min_overlap``; when no
   view passes, the most informative view is taken (as the oracle does).
-- ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view.
+- ``oracle``: the exhaustive ground truth of ``nbvdata.oracle`` over every candidate view; once no
+  view adds anything at the scene's match distance, ``farthest``'s view.
+- ``viewrank``: a ranker of per-view features (``nbvtrain.viewrank``, ``RankerPlanner``) on any view set.
+- ``occlusion-aware``, ``unobserved-voxel``, ``rear-side-voxel``, ``rear-side-entropy``,
+  ``proximity-count``, ``average-entropy``, ``area-factor``: the field's hand-crafted metrics over
+  every candidate view (``nbvdata.viewfeatures.METRICS``, ``MetricPlanner``).
 - ``setcover``: SCVP's one-shot plan, privileged like the oracle: at its first decision it
   solves the state's set cover (``nbvdata.setcover``, the fewest views that cover the rest) once,
   then scans the planned views in the order of the shortest tour from where the sensor is
@@ -822,7 +827,7 @@ register_planner("infogain", ("grid",), "Kriegel et al. 2012 over 20 views laid 
                                      context.config.mesh.object_size, context.config.oracle.min_overlap,
                                      layout=context.infogain_layout())])
 register_planner("oracle", ("scene",), "the exhaustive ground truth over all candidate views (when no view is valid, "
-                 "the most informative one)")(
+                 "the most informative one; when no view adds anything, the unscanned view farthest from the scans)")(
     lambda context: [OraclePlanner(context.views, context.config.oracle.min_overlap)])
 register_planner("setcover", ("scene",), "SCVP's one-shot plan: the set cover of its first state (docs/setcover.md), "
                  "scanned in the shortest tour's order round the object; then the view adding the most")(
