@@ -228,10 +228,9 @@ def _differences_table(rows, budget, planners, reference, seed) -> list[str]:
             if comparison.planner == reference:
                 continue
             objects.setdefault(comparison.planner, comparison.objects)  # the first metric's: AUC
-            verdict = ("yes" if comparison.separable else "no") if comparison.decided else "no verdict"
             cells[comparison.planner].append(
                 f"{comparison.mean:+.{digits}f} [{comparison.low:+.{digits}f}, {comparison.high:+.{digits}f}], "
-                f"{comparison.wins}/{comparison.ties}/{comparison.losses}, {verdict}")
+                f"{comparison.wins}/{comparison.ties}/{comparison.losses}, {comparison.verdict}")
     for planner in planners:
         if planner != reference:
             lines.append(f"| {planner} | {objects.get(planner, 0)} | " + " | ".join(cells[planner]) + " |")
@@ -246,9 +245,9 @@ def _auc_against(rows, budget, planners, reference, seed) -> list[str]:
     for comparison in compare({p: 100 * v for p, v in values.items()}, reference, seed):
         if comparison.planner == reference:
             continue
-        verdict = ("yes" if comparison.separable else "no") if comparison.decided else "no verdict"
         lines.append(f"| {comparison.planner} | {comparison.objects} | {comparison.mean:+.1f} [{comparison.low:+.1f}, "
-                     f"{comparison.high:+.1f}], {comparison.wins}/{comparison.ties}/{comparison.losses}, {verdict} |")
+                     f"{comparison.high:+.1f}], {comparison.wins}/{comparison.ties}/{comparison.losses}, "
+                     f"{comparison.verdict} |")
     return lines
 
 

@@ -339,10 +339,26 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     return 0
 
 
+def _manifest_part(args: argparse.Namespace, purpose: str) -> tuple[list, dict] | None:
+    """evaluate's and benchmark's ``--manifest M --part P``: (the mesh sources of that part of its
+    split, found under --meshes; the selection's settings), or None without --manifest (where a
+    --part alone is refused). ``purpose``: what the part is for, in the message that asks for it."""
+    from nbvdata.sources import part_sources
+
+    if args.manifest is None:
+        if args.part is not None:
+            raise ConfigError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
+                              "whose mesh split it names")
+        return None
+    if args.part is None:
+        raise ConfigError(f"--manifest needs --part val, test or train: the part of its mesh split to {purpose}")
+    return part_sources(args.manifest, args.part, args.meshes)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Reconstruct unseen objects in closed loop with each planner; coverage.csv, summary, plots."""
     from nbvdata.config import SimConfig
-    from nbvdata.sources import mesh_sources, part_sources
+    from nbvdata.sources import mesh_sources
     from nbvdata.mesh import MeshError
     from nbvdata.views import view_sphere
     from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
@@ -360,16 +376,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             import nbvdata.rerun  # noqa: F401  (missing: said before any reconstruction)
         except ImportError as error:
             raise ConfigError(f"--rerun: {error}") from None
-    selection = {}
-    if args.manifest is not None:
-        if args.part is None:
-            raise ConfigError("--manifest needs --part val, test or train: the part of its mesh split to evaluate")
-        sources, selection = part_sources(args.manifest, args.part, args.meshes)
-        failures = []
+    chosen = _manifest_part(args, "evaluate")
+    if chosen is not None:
+        (sources, selection), failures = chosen, []
     else:
-        if args.part is not None:
-            raise ConfigError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
-                              "whose mesh split it names")
+        selection = {}
         if args.meshes is None:
             raise ConfigError("no meshes given: --meshes DIR (a folder, one mesh file or a .txt list), or --manifest "
                               "manifests/NAME-X.Y.Z.json --part val --meshes ROOT")
@@ -440,18 +451,11 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
         raise ConfigError(f"--reference {args.reference}: not among --planners ({','.join(names)}): add it, or compare "
                           "against one of them")
     meshes = args.meshes if args.meshes is not None else BENCH_MESHES
-    if args.manifest is not None:
-        from nbvdata.sources import part_sources
-
-        if args.part is None:
-            raise ConfigError("--manifest needs --part val, test or train: the part of its mesh split to run on")
-        sources, selection = part_sources(args.manifest, args.part, args.meshes)
-        failures = []
+    chosen = _manifest_part(args, "run on")
+    if chosen is not None:
+        (sources, _), failures = chosen, []
         meshes = f"{args.manifest} --part {args.part}"
     else:
-        if args.part is not None:
-            raise ConfigError(f"--part {args.part} needs --manifest manifests/NAME-X.Y.Z.json, the published version "
-                              "whose mesh split it names")
         if not meshes.exists():
             raise ConfigError(f"--meshes {meshes}: no such folder (the default is the bench corpus, "
                               "../shared/meshes/bench beside the checkout): pass --meshes DIR")

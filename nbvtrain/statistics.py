@@ -73,6 +73,13 @@ class Comparison:
         """Whether the comparison has the ``MIN_OBJECTS`` objects an interval needs to decide."""
         return self.objects >= MIN_OBJECTS
 
+    @property
+    def verdict(self) -> str:
+        """What a table says of it: "yes" (separable), "no", or "no verdict" below ``MIN_OBJECTS``."""
+        if not self.decided:
+            return "no verdict"
+        return "yes" if self.separable else "no"
+
 
 def compare(values: dict[str, np.ndarray], reference: str, seed: int, tie: float = 1e-9,
             higher_is_better: bool = True) -> list[Comparison]:

@@ -195,6 +195,8 @@ def test_a_planner_that_raises_on_one_object_fails_that_object_only(small_protoc
     (["--meshes", "/nonexistent/folder"], "no such folder"),
     (["--reference", "oracle", "--planners", "farthest,random"], "--reference oracle: not among --planners"),
     (["--planners", "oracel"], "--planners 'oracel': choose from"),
+    (["--part", "val"], "--part val needs --manifest manifests/NAME-X.Y.Z.json"),
+    (["--manifest", "manifests/train-meshes-1.6.0.json"], "--manifest needs --part val, test or train"),
 ])
 def test_bad_arguments_are_one_line_and_exit_2(corpus, tmp_path, capsys, argv, words):
     base = ["benchmark", "--meshes", str(corpus), "--out", str(tmp_path / "out"), "--no-progress"]
