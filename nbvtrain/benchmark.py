@@ -384,7 +384,10 @@ def run_metrics(rows: list[dict], extras: list[dict], path: np.ndarray, radius: 
     metrics = {"auc": auc(coverage), "coverage": float(coverage[-1]), "observable_coverage": float(observable[-1]),
                "path_m": float(path[-1]), "path_radii": float(path[-1] / radius) if radius > 0 else float("nan"),
                "chamfer": chamfer, "seconds": float(np.mean(decisions)) if decisions else 0.0}
-    metrics |= {f"scans_to_{round(100 * target)}": scans_to(observable, target) for target in targets}
+    for target in targets:
+        reached = scans_to(observable, target)
+        metrics[f"scans_to_{round(100 * target)}"] = reached
+        metrics[f"path_to_{round(100 * target)}"] = None if reached is None else float(path[reached - 1])
     return metrics | (extras[-1] if extras else {})
 
 

@@ -20,7 +20,8 @@
     failures.tsv, tracebacks.txt   meshes that failed, and where a planner raised
 
 A scan-count metric of a start that never reached its target counts as the budget plus one
-(censored: "not reached within the budget"); benchmark.md says so under each table and counts
+(censored: "not reached within the budget"), its path to the target as the whole budget's path (a
+lower bound); benchmark.md says so under each table and counts
 the reconstructions that did not reach it ("k/N n.r."). The difficulty of an object is the oracle's AUC at
 the first budget, mean over starts (how fast even the greedy best planner covers it: low for
 objects with deep self-occlusion, high for convex ones), split into thirds: hard, medium, easy.
@@ -50,7 +51,9 @@ DIFFICULTY = ("hard", "medium", "easy")
 
 
 def targets_of(report: BenchmarkReport) -> list[str]:
-    return [f"scans_to_{round(100 * target)}" for target in report.protocol.targets]
+    """The scans-to-X columns, then the path-to-X ones, of the protocol's targets."""
+    return ([f"scans_to_{round(100 * target)}" for target in report.protocol.targets]
+            + [f"path_to_{round(100 * target)}" for target in report.protocol.targets])
 
 
 def thresholds_of(report: BenchmarkReport) -> list[str]:
@@ -78,8 +81,8 @@ def per_object(report: BenchmarkReport) -> list[dict]:
                     continue
                 row = {"budget": label, "mesh": mesh, "planner": planner, "starts": len(group)}
                 for name in names:
-                    values = [censor[label] if run[name] is None and name.startswith("scans_to") else run[name]
-                              for run in group]
+                    values = [run[name] if run[name] is not None else
+                              censor[label] if name.startswith("scans_to") else run["path_m"] for run in group]
                     row[name] = float(np.mean(values))
                 mesh_floors = floors.get(mesh, [])
                 row["floor"] = float(np.mean([1 + f["cover_size"] for f in mesh_floors])) if mesh_floors else float("nan")
@@ -142,6 +145,8 @@ def summary_markdown(report: BenchmarkReport, rows: list[dict], reference: str |
                           "losses count objects; n the objects compared; \"yes\" where the interval excludes 0, "
                           f"\"no verdict\" on fewer than {MIN_OBJECTS} objects):", ""]
             lines += _differences_table(rows, budget, planners, reference, seed)
+            if targets_of(report):
+                lines += ["", *_targets_against(rows, budget, planners, reference, report, seed)]
             lines += ["", *_step_table(report, budget, planners, reference, seed)]
         for other in others:
             if other in planners:
@@ -182,7 +187,8 @@ def _units(report: BenchmarkReport) -> str:
 
 
 def _means_table(rows, budget, planners, report, seed) -> list[str]:
-    shown = SHOWN + [(name, name.replace("_", " "), 1, 2, False) for name in targets_of(report)] + [
+    shown = SHOWN + [(name, name.replace("_", " ") + (" (m)" if name.startswith("path") else ""), 1, 2, False)
+                     for name in targets_of(report)] + [
         (name, name.replace("_", "@"), 100, 1, True) for name in thresholds_of(report)]
     meshes = {row["mesh"] for row in rows if row["budget"] == budget}
     header = (f"| planner (n = {plural(len(meshes), 'object')}) | " + " | ".join(title for _, title, *_ in shown)
@@ -199,15 +205,16 @@ def _means_table(rows, budget, planners, report, seed) -> list[str]:
                 cells.append("-")
                 continue
             low, high = bootstrap_interval(value, seed + offset)
-            missed = sum(run[name] is None for run in runs) if name.startswith("scans_to") else 0
+            missed = sum(run[name] is None for run in runs) if name.startswith(("scans_to", "path_to")) else 0
             cells.append(f"{value.mean():.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
                          + (f", {missed}/{len(runs)} n.r." if missed else ""))
         lines.append(f"| {planner} | " + " | ".join(cells) + " |")
     if targets_of(report):
         views = report.protocol.budgets[budget]
         lines += ["", f"Scans to X: a start that does not reach X % within the budget counts as the budget plus one "
-                      f"({views + 1} for these {views} scans) in the means; \"k/N n.r.\": k of the planner's N "
-                      "reconstructions (objects x starts) did not reach it."]
+                      f"({views + 1} for these {views} scans) in the means, and its path to X as the whole budget's "
+                      "path (a lower bound); \"k/N n.r.\": k of the planner's N reconstructions (objects x starts) did "
+                      "not reach it."]
     floors = [row["floor"] for row in rows if row["budget"] == budget and row["planner"] == planners[0]]
     if floors and np.isfinite(floors).any():
         lines += ["", f"Set-cover floor (the fewest views that reach all the observable surface from the start, "
@@ -235,6 +242,23 @@ def _differences_table(rows, budget, planners, reference, seed) -> list[str]:
         if planner != reference:
             lines.append(f"| {planner} | {objects.get(planner, 0)} | " + " | ".join(cells[planner]) + " |")
     return lines
+
+
+def _targets_against(rows, budget, planners, reference, report, seed) -> list[str]:
+    """Scans and path to each target against ``reference``, paired per object (censored as the means)."""
+    names = targets_of(report)
+    lines = [f"Scans and path (m) to each target against `{reference}` (planner - {reference}, per object; [95 %], "
+             "W/T/L with fewer a win, separable; censored as in the means):", "",
+             "| planner | " + " | ".join(name.replace("_", " ") for name in names) + " |", "|---" * (1 + len(names)) + "|"]
+    cells = defaultdict(list)
+    for name in names:
+        _, values = _values(rows, budget, planners, name)
+        for comparison in compare(values, reference, seed, higher_is_better=False):
+            if comparison.planner != reference:
+                cells[comparison.planner].append(f"{comparison.mean:+.2f} [{comparison.low:+.2f}, {comparison.high:+.2f}], "
+                                                 f"{comparison.wins}/{comparison.ties}/{comparison.losses}, "
+                                                 f"{comparison.verdict}")
+    return lines + [f"| {planner} | " + " | ".join(cells[planner]) + " |" for planner in planners if planner != reference]
 
 
 def _auc_against(rows, budget, planners, reference, seed) -> list[str]:

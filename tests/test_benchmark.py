@@ -276,7 +276,9 @@ def _synthetic(objects: int, starts: int = 1) -> tuple:
                 report.runs.append({"budget": "6 scans", "mesh": f"m{mesh}", "planner": planner, "start": start,
                                     "start_view": 0} | {m: base + ahead + rng.normal(0, 0.002) for m in RUN_METRICS}
                                    | {"scans_to_90": 3, "scans_to_95": None if (planner, mesh) == ("farthest", 0)
-                                      else 5, "scans_to_99": None})
+                                      else 5, "scans_to_99": None, "path_to_90": 0.5,
+                                      "path_to_95": None if (planner, mesh) == ("farthest", 0) else 0.9,
+                                      "path_to_99": None})
     return report, per_object(report)
 
 
