@@ -42,6 +42,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     """Train a network; with --resume continue the run in --out."""
     if args.model in RANKERS:
         return _fit_ranker(args)
+    if args.model in COVER_MODELS:
+        return _fit_cover(args)
+    for flag in ("width", "train_states"):
+        if getattr(args, flag, None) is not None:
+            raise ConfigError(f"--{flag.replace('_', '-')}: an option of --model scvp-net only; leave it out")
     from nbvtrain.config import TrainConfig
     from nbvtrain.train import Interrupted, fit, load_run_config
 
@@ -80,7 +85,7 @@ def _fit_ranker(args: argparse.Namespace) -> int:
     from nbvtrain.viewrank import RankerConfig
 
     for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
-                 "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config"):
+                 "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config", "width", "train_states"):
         if getattr(args, flag, None) not in (None, False, []):
             raise ConfigError(f"--{flag.replace('_', '-')}: not an option of a ranker ({args.model}); leave it out")
     if args.split == "random":
@@ -94,6 +99,53 @@ def _fit_ranker(args: argparse.Namespace) -> int:
     metrics = fit_ranker(args.shards, config, out, target=args.target, root=args.root, workers=args.workers,
                          cache=cache, progress=progress)
     print(f"nbvtrain fit: {describe(metrics)}; {out / metrics['file']} ({time.perf_counter() - started:.0f} s)")
+    return 0
+
+
+COVER_MODELS = ("cover-gbm", "scvp-net")  # nbvtrain.covermodel, nbvtrain.covernet
+
+
+def _fit_cover(args: argparse.Namespace) -> int:
+    """``fit --model cover-gbm|scvp-net``: a set-cover model on manifests or shard folders with covers."""
+    allowed = {"cover-gbm": ("rays", "sample", "seed", "trees", "lr", "threads", "workers", "feature_cache"),
+               "scvp-net": ("seed", "epochs", "batch_size", "lr", "threads", "width", "train_states")}[args.model]
+    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
+                 "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "trees", "epochs",
+                 "batch_size", "width", "train_states", "feature_cache"):
+        if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
+            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
+    if args.split == "random":
+        raise ConfigError(f"--split random: {args.model} is validated on whole meshes (the mesh split); leave --split out")
+    out = args.out or Path("runs") / args.model
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    started = time.perf_counter()
+    if args.model == "cover-gbm":
+        from nbvtrain.covermodel import CoverModelConfig, fit_cover_model
+        from nbvtrain.rankfit import DEFAULT_CACHE
+
+        names = {"rays": "rays", "sample": "sample", "seed": "seed", "trees": "trees", "lr": "learning_rate",
+                 "threads": "threads"}
+        config = CoverModelConfig(**{key: getattr(args, attr) for attr, key in names.items()
+                                     if getattr(args, attr) is not None})
+        cache = None if args.feature_cache == Path("none") else (args.feature_cache or DEFAULT_CACHE)
+        metrics = fit_cover_model(args.shards, config, out, root=args.root, workers=args.workers, cache=cache,
+                                  progress=progress)
+        val = metrics["val"]
+        print(f"nbvtrain fit: cover-gbm: validation sets of {val['predicted_size']:.2f} views against optimal "
+              f"{val['optimal_size']:.2f}, precision {val['precision']:.3f}, recall {val['recall']:.3f} (the expected "
+              f"size's most probable views) on {plural(val['states'], 'state')}; {out / 'cover.json'} "
+              f"({time.perf_counter() - started:.0f} s)")
+        return 0
+    from nbvtrain.covernet import CoverNetConfig, fit_covernet
+
+    names = {"width": "width", "epochs": "epochs", "batch_size": "batch", "lr": "learning_rate",
+             "train_states": "train_states", "seed": "seed", "threads": "threads"}
+    config = CoverNetConfig(**{key: getattr(args, attr) for attr, key in names.items() if getattr(args, attr)})
+    metrics = fit_covernet(args.shards, config, out, root=args.root, progress=progress)
+    val = metrics["val"]
+    print(f"nbvtrain fit: scvp-net: validation sets of {val['predicted_size']:.2f} views against optimal "
+          f"{val['optimal_size']:.2f}, precision {val['precision']:.3f}, recall {val['recall']:.3f} on "
+          f"{plural(val['states'], 'state')}; {out / 'covernet.pt'} ({time.perf_counter() - started:.0f} s)")
     return 0
 
 
@@ -391,6 +443,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
     weights = _numbers(args.hybrid_weight, "--hybrid-weight")
     checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint,
+                   "cover": args.cover_model, "scvp-net": args.scvp_checkpoint,
                    "ranker": _checkpoint_list(args.ranker, "--ranker")}
     if args.spread is not None and args.no_stall:
         raise ConfigError("--spread never repeats a view already: drop --no-stall")
@@ -433,7 +486,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     from nbvtrain.benchmark import BENCH_MESHES, benchmark, load_protocol, protocol_config
     from nbvtrain.benchmark_report import write_benchmark
     from nbvtrain.evaluate import settings_dict
-    from nbvtrain.planners import PLANNERS, TravelPlanner, build_planners, default_planners
+    from nbvtrain.planners import PLANNERS, CoverPlanner, TravelPlanner, build_planners, default_planners
 
     protocol = load_protocol(args.protocol)
     weights = _numbers(args.travel_weight, "--travel-weight") if args.travel_weight is not None else []
@@ -468,14 +521,16 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     sources = sources[:args.limit] if args.limit else sources
     checkpoints = {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"),
                    "regression": args.checkpoint, "classification": args.class_checkpoint,
-                   "ranker": _checkpoint_list(args.ranker, "--ranker")}
+                   "ranker": _checkpoint_list(args.ranker, "--ranker"), "cover": args.cover_model,
+                   "scvp-net": args.scvp_checkpoint}
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints,
                                        foreign_views=protocol.snap)
     for message in skipped:
         print(f"nbvtrain benchmark: {message}", file=sys.stderr)
     radius = config.mesh.object_size * math.sqrt(3) / 2  # what a robot knows of the object's bounding sphere
-    planners += [TravelPlanner(planner, weight, radius) for weight in weights for planner in list(planners)
-                 if hasattr(planner, "candidate_scores")]
+    planners += [TravelPlanner(planner, weight, radius) if hasattr(planner, "candidate_scores") else planner.travel(weight)
+                 for weight in weights for planner in list(planners)
+                 if hasattr(planner, "candidate_scores") or isinstance(planner, CoverPlanner)]
     skipped_references = [name for name in references if name not in {planner.name for planner in planners}]
     if skipped_references:
         raise ConfigError(f"--reference {','.join(skipped_references)}: that planner was skipped (see above): pass its "
@@ -583,9 +638,12 @@ def _add_fit(sub, released: dict[str, str]) -> None:
                      "configs/train.yaml lists)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
-    fit.add_argument("--model", choices=list(MODELS) + list(RANKERS), help="network (default nbvnet-4-5), or a "
-                     "ranker of candidate views from per-view features: viewrank-gbm (LightGBM lambdarank) or "
-                     "viewrank-mlp (a small torch scorer), trained on manifests' mesh splits (docs/viewrank.md)")
+    fit.add_argument("--model", choices=list(MODELS) + list(RANKERS) + list(COVER_MODELS), help="network (default "
+                     "nbvnet-4-5), or a ranker of candidate views from per-view features: viewrank-gbm (LightGBM "
+                     "lambdarank) or viewrank-mlp (a small torch scorer), trained on manifests' mesh splits "
+                     "(docs/viewrank.md); or a set-cover model on shards with covers: cover-gbm (each view's membership "
+                     "from the ranker's features, any view set) or scvp-net (SCVP's network, one view set) "
+                     "(docs/setcover.md)")
     fit.add_argument("--epochs", type=positive_int, help="total epochs (default 600)")
     fit.add_argument("--batch-size", type=positive_int, help="samples per step (default 250)")
     fit.add_argument("--lr", type=positive_float, help="Adam learning rate (default 1e-4)")
@@ -615,13 +673,16 @@ def _add_fit(sub, released: dict[str, str]) -> None:
                      "that pass the overlap rule (valid, the ground truth's, default) or of every view (all)")
     fit.add_argument("--rays", type=_rays, help="rankers: rays per view of the features' bundle, WIDTHxHEIGHT "
                      "(default 16x12)")
-    fit.add_argument("--sample", type=non_negative_int, help="rankers: training rows per state at most (default 64; "
+    fit.add_argument("--sample", type=non_negative_int, help="rankers: training rows per state at most (viewrank default 64, cover-gbm 0; "
                      "0 = every unscanned view)")
     fit.add_argument("--trees", type=positive_int, help="viewrank-gbm: boosting rounds at most (default 600)")
     fit.add_argument("--workers", type=positive_int, default=2, help="rankers: processes computing the features "
                      "(default 2)")
     fit.add_argument("--feature-cache", type=Path, help="rankers: folder keeping each shard's features for the next "
                      "fit (default runs/viewrank-features; 'none': keep none)")
+    fit.add_argument("--width", type=positive_int, help="scvp-net: channels of its stem (default 32, SCVP's)")
+    fit.add_argument("--train-states", type=positive_int, help="scvp-net: train on at most this many states (a seeded "
+                     "choice; default all)")
     fit.add_argument("--out", type=Path, help="run folder (default runs/MODEL)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     fit.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -675,7 +736,9 @@ def _add_plan(sub, released: dict[str, str]) -> None:
     plan.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit: a candidate-score, regression or "
                       "classification network, or a ranker (viewrank.json or .pt; default: the released ranker, "
                       f"{released['viewrank']}, ahead on the validation objects; the released score network, "
-                      f"{released['scores']}, is nbvtrain/released/{released['scores']}.pt)")
+                      f"{released['scores']}, is nbvtrain/released/{released['scores']}.pt); or a set-cover model "
+                      "(cover.json of --model cover-gbm, covernet.pt of --model scvp-net): then the answer also holds "
+                      "plan, every planned view in tour order, and plan_path (docs/setcover.md)")
     plan.add_argument("--max-range", type=positive_float, help="with --scans: metres from the sensor beyond which a "
                       "point marks nothing occupied and carves free space to that range (default sensor.far x k)")
     plan.add_argument("--config", type=Path, help="YAML of the training data's scene, as for nbvdata (default: "
@@ -720,6 +783,10 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
                           "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
     evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
+    evaluate.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
+                          "--model cover-gbm (docs/setcover.md)")
+    evaluate.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
+                          "fit --model scvp-net (docs/setcover.md)")
     evaluate.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")
@@ -812,7 +879,13 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
     bench.add_argument("--limit", type=positive_int, help="only the first N meshes (a quick try)")
     bench.add_argument("--travel-weight", metavar="L[,L...]", help="also run oracle, scores, infogain and farthest "
                        "weighing the path to each view: score (scaled to [0, 1]) minus L times the path (scaled by the "
-                       "longest); one planner NAME-travelL per weight (docs/benchmark.md)")
+                       "longest); and cover and scvp-net dropping each planned view whose detour in the tour (view-"
+                       "sphere radii) times L exceeds its probability; one planner NAME-travelL per weight "
+                       "(docs/benchmark.md, docs/setcover.md)")
+    bench.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
+                          "--model cover-gbm (docs/setcover.md)")
+    bench.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
+                          "fit --model scvp-net (docs/setcover.md)")
     bench.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")

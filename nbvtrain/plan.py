@@ -324,6 +324,41 @@ class RankingPlanner:
         return NBVPrediction(np.array([scores[view]]), self.view_units[view], self.views[view])
 
 
+class CoverPlanPlanner:
+    """A set-cover model (``cover-gbm`` or ``scvp-net``, ``nbvtrain.planners.CoverPlanner``): the whole
+    set of candidate views it predicts will cover the rest, in the shortest tour's order from the
+    last scan (``plan``); the next view is the tour's first. An OctoMap has no scans: nothing is
+    marked, and the tour starts at the set's first view."""
+
+    epoch = None
+
+    def __init__(self, planner, config: SimConfig):
+        self.planner, self.config, self.name = planner, config, planner.name
+        self.views = planner.views
+        self.radius, self.view_units = config.views.radius, self.views.unit_positions
+        self.plan: list[int] = []
+        self.probabilities: np.ndarray | None = None
+
+    def next_view(self, grid: np.ndarray, taken: np.ndarray | None, cloud: np.ndarray | None = None) -> NBVPrediction:
+        from nbvtrain.planners import Observation
+
+        positions = np.zeros((0, 3)) if taken is None else np.asarray(taken, dtype=np.float64).reshape(-1, 3)
+        poses = ViewSet(positions, look_at_rotations(positions)) if len(positions) else []
+        observation = Observation(np.asarray(grid, dtype=np.float32), tuple(poses[i] for i in range(len(positions))))
+        self.probabilities = self.planner.probabilities(observation)
+        self.plan = self.planner.planned_set(observation)
+        view = self.plan[0]
+        return NBVPrediction(np.array([self.probabilities[view]]), self.view_units[view], self.views[view])
+
+
+def _cover_model_kind(path: Path) -> str | None:
+    """"cover" for a cover-gbm file, "scvp-net" for a scvp-net checkpoint (by its name), else None."""
+    if path.suffix.lower() == ".json" and path.is_file():
+        with path.open("rb") as handle:
+            return "cover" if b'"nbvtrain-cover"' in handle.read(200) else None
+    return "scvp-net" if path.suffix == ".pt" and path.stem.startswith("covernet") else None
+
+
 NETWORK_PLANNERS = {"regression": NetworkPlanner, "classification": NetworkPlanner, "scores": ScorePlanner}
 """Planner by the checkpoint's task."""
 
@@ -344,6 +379,20 @@ none is released the released score network; ``nbvtrain.release``);
             path = released_ranker()
         except NoReleasedModel:
             path = released_checkpoint()
+    kind = _cover_model_kind(path)
+    if kind is not None:
+        if tta:
+            raise PlanError(f"--tta: {path} is a set-cover model, which plan runs as it is: drop --tta")
+        from nbvtrain.planners import CoverModelPlanner, SCVPNetPlanner, Skipped
+
+        config = config or SimConfig()
+        views, radius = view_sphere(config.views), config.mesh.object_size * math.sqrt(3) / 2
+        if kind == "cover":
+            return CoverPlanPlanner(CoverModelPlanner(path, views, config, radius), config)
+        try:
+            return CoverPlanPlanner(SCVPNetPlanner(path, views, radius), config)
+        except Skipped as reason:
+            raise PlanError(f"{reason}: pass --set views.layout=scvp-32 --set views.count=32") from None
     if is_ranker_file(path):
         if tta:
             raise PlanError(f"--tta: {path} is a ranker of per-view features, which quarter turns leave unchanged "
@@ -480,9 +529,31 @@ def plan(center: np.ndarray, *, scans: str | Path | None = None, octomap: str | 
         prediction = NBVPrediction(prediction.raw, views.unit_positions[view], views[view])
         candidate = {"view": view, "spread": spread,
                      "scanned": np.flatnonzero(scanned_state(taken, views.unit_positions)).tolist()}
+    if isinstance(planner, CoverPlanPlanner):
+        candidate["plan"] = [_planned_view(frame, planner, view) for view in planner.plan]
+        candidate["plan_path"] = _tour_path(taken, planner) * frame.k
     world = frame.pose_to_world(prediction.pose)
     return PlanResult(world, prediction.pose, np.asarray(prediction.raw), frame, grid, config, planner, source,
                       taken, reach, octomap_info, candidate)
+
+
+def _planned_view(frame: ObjectFrame, planner: CoverPlanPlanner, view: int) -> dict:
+    """One view of a cover plan for the robot: its index, world position and orientation, probability."""
+    pose = frame.pose_to_world(planner.views[view])
+    quaternion = Rotation.from_matrix(pose.matrix[:3, :3]).as_quat(canonical=True)
+    return {"view": int(view), "position": pose.position.tolist(), "quaternion_xyzw": quaternion.tolist(),
+            "probability": float(planner.probabilities[view])}
+
+
+def _tour_path(taken: np.ndarray | None, planner: CoverPlanPlanner) -> float:
+    """The plan's path in the object frame: from the last scan (none: the first planned view) through
+    the planned views in order, round the bounding sphere (``nbvdata.paths``)."""
+    from nbvdata.paths import path_lengths
+
+    stops = planner.views.positions[planner.plan]
+    if taken is not None and len(taken):
+        stops = np.concatenate([np.asarray(taken, dtype=np.float64).reshape(-1, 3)[-1:], stops])
+    return float(path_lengths(stops, planner.planner.radius)[-1])
 
 
 def render_plan(result: PlanResult, out: str | Path) -> Path:

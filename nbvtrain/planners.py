@@ -702,6 +702,146 @@ class RankerPlanner(Planner):
         return self.views[self.next_view(observation)]
 
 
+class CoverPlanner(Planner):
+    """A learned one-shot plan (SCVP's idea): from the current state, a model predicts the set of
+    candidate views that will cover what is left - every unscanned view whose probability of being
+    in the state's exact cover reaches the model's threshold (the most probable one when none does)
+    - (``chosen``; ``cover`` takes its expected number of most probable views instead) - and the
+    planner visits it in the shortest tour's order from where the sensor is
+    (``nbvdata.paths.shortest_tour``, round the bounding sphere a robot knows, ``radius``). With the
+    set done it predicts again from the state it has reached (re-activation) until the budget.
+
+    ``travel_weight`` L > 0 trades views for path: the planned set drops, one at a time, the view
+    whose detour in the tour (d(prev, v) + d(v, next) - d(prev, next), in view-sphere radii) times L
+    exceeds its probability by the most, until none does (L = 0: the set as predicted; it keeps
+    one view at least). Subclasses give ``probabilities(observation) -> (V,)`` and ``threshold``."""
+
+    threshold = 0.5
+
+    def __init__(self, views: ViewSet, radius: float, travel_weight: float = 0.0):
+        self.views, self.radius, self.travel_weight = views, radius, float(travel_weight)
+        self.plan: list[int] = []
+
+    def probabilities(self, observation: Observation) -> np.ndarray:
+        raise NotImplementedError
+
+    def start(self, seed: int | np.random.SeedSequence) -> None:
+        self.plan = []
+
+    def planned_set(self, observation: Observation) -> list[int]:
+        """The views to visit next, in tour order, predicted from ``observation`` (class docstring)."""
+        taken = scanned_views(observation.positions, self.views.unit_positions)
+        probabilities = np.where(taken, -np.inf, self.probabilities(observation))
+        chosen = self.chosen(probabilities)
+        here = observation.positions[-1] if len(observation.positions) else self.views.positions[chosen[0]]
+        order = [chosen[i] for i in shortest_tour(here, self.views.positions[chosen], self.radius)]
+        if self.travel_weight > 0:
+            order = self._pruned(here, order, probabilities)
+        return order
+
+    def chosen(self, probabilities: np.ndarray) -> list[int]:
+        """The planned views (unordered) of (V,) probabilities, -inf for scanned views: those that
+        reach the threshold, the most probable one when none does."""
+        chosen = [int(v) for v in np.flatnonzero(probabilities >= self.threshold)]
+        return chosen or [int(np.argmax(probabilities))]
+
+    def _pruned(self, here: np.ndarray, order: list[int], probabilities: np.ndarray) -> list[int]:
+        scale = float(np.linalg.norm(self.views.positions[0]))
+        while len(order) > 1:
+            stops = [here] + [self.views.positions[v] for v in order]
+            detours = []
+            for k in range(1, len(stops)):
+                before = path_length(stops[k - 1], stops[k], self.radius)
+                after = path_length(stops[k], stops[k + 1], self.radius) if k + 1 < len(stops) else 0.0
+                skip = path_length(stops[k - 1], stops[k + 1], self.radius) if k + 1 < len(stops) else 0.0
+                detours.append((before + after - skip) / scale)
+            value = [self.travel_weight * detour - probabilities[v] for detour, v in zip(detours, order)]
+            worst = int(np.argmax(value))
+            if value[worst] <= 0:
+                break
+            kept = order[:worst] + order[worst + 1:]
+            order = [kept[i] for i in shortest_tour(here, self.views.positions[kept], self.radius)]
+        return order
+
+    def next_pose(self, observation: Observation, truth: Reconstruction | None = None) -> Pose:
+        taken = scanned_views(observation.positions, self.views.unit_positions)
+        self.plan = [view for view in self.plan if not taken[view]]
+        if not self.plan:
+            self.plan = self.planned_set(observation)
+        return self.views[self.plan.pop(0)]
+
+    def travel(self, weight: float) -> "CoverPlanner":
+        """This planner with travel weight ``weight``, named ``NAME-travelW``."""
+        other = self._copy()
+        other.travel_weight, other.name = float(weight), f"{self.name}-travel{weight:g}"
+        return other
+
+    def _copy(self) -> "CoverPlanner":
+        raise NotImplementedError
+
+
+class CoverModelPlanner(CoverPlanner):
+    """``cover``: the plan of a ``cover-gbm`` model (``nbvtrain.covermodel``): each view's
+    probability of being in the cover from its per-view features, on any view set; the set is the
+    k most probable unscanned views, k their probabilities' sum rounded (the expected cover size)."""
+
+    def __init__(self, model: str | Path, views: ViewSet, config: SimConfig, radius: float,
+                 travel_weight: float = 0.0, name: str = "cover"):
+        from nbvtrain.covermodel import load_cover_model
+
+        super().__init__(views, radius, travel_weight)
+        self.name, self.model, self.config = name, model, config
+        self.cover = load_cover_model(model)
+        self.cover.check_scene(config, str(model))
+        self.threshold = self.cover.threshold
+
+    def __reduce__(self):
+        """Pickled as its arguments: a worker process loads the model file itself."""
+        return type(self), (self.model, self.views, self.config, self.radius, self.travel_weight, self.name)
+
+    def _copy(self) -> "CoverPlanner":
+        return type(self)(self.model, self.views, self.config, self.radius, self.travel_weight, self.name)
+
+    def probabilities(self, observation: Observation) -> np.ndarray:
+        return self.cover.view_probabilities(observation.probabilities, observation.positions, self.views, self.config)
+
+    def chosen(self, probabilities: np.ndarray) -> list[int]:
+        """The k most probable unscanned views, k the expected cover size (``covermodel.expected_sets``)."""
+        from nbvtrain.covermodel import expected_sets
+
+        free = np.isfinite(probabilities)
+        rows = np.flatnonzero(free)
+        picked = expected_sets(probabilities[rows], np.array([len(rows)]))
+        return sorted(int(v) for v in rows[picked])
+
+
+class SCVPNetPlanner(CoverPlanner):
+    """``scvp-net``: the plan of SCVP's network (``nbvtrain.covernet``): the grid in, one probability
+    per view of the one view set it was trained on (views with probability >= 0.5)."""
+
+    def __init__(self, checkpoint: str | Path, views: ViewSet, radius: float, travel_weight: float = 0.0,
+                 name: str = "scvp-net"):
+        from nbvtrain.covernet import THRESHOLD, load_covernet
+
+        super().__init__(views, radius, travel_weight)
+        self.name, self.checkpoint, self.threshold = name, checkpoint, THRESHOLD
+        self.net = load_covernet(checkpoint)
+        trained = self.net.view_positions
+        if trained.shape != views.positions.shape or not np.allclose(trained, views.positions, atol=1e-6):
+            raise Skipped(f"{checkpoint} predicts its {len(trained)} candidate views, this run has {len(views)} "
+                          "others (scvp-net plans one view set: run it under the layout it was trained on, e.g. "
+                          "--protocol scvp)")
+
+    def __reduce__(self):
+        return type(self), (self.checkpoint, self.views, self.radius, self.travel_weight, self.name)
+
+    def _copy(self) -> "CoverPlanner":
+        return type(self)(self.checkpoint, self.views, self.radius, self.travel_weight, self.name)
+
+    def probabilities(self, observation: Observation) -> np.ndarray:
+        return self.net.probabilities(observation.probabilities)
+
+
 @dataclass(frozen=True)
 class PlannerKind:
     """A registered planner. ``name``: what ``--planners`` names; ``reads``: what it decides from
@@ -768,7 +908,15 @@ class PlannerContext:
         try:
             return released_checkpoint(task)
         except NoReleasedModel as reason:
-            raise Skipped(str(reason)) from None
+            flag = {"cover": "--cover-model runs/cover-gbm/cover.json",
+                    "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt"}.get(task)
+            raise Skipped(f"no {task} model is released with this package: pass {flag}" if flag else str(reason)) \
+                from None
+
+    @property
+    def robot_radius(self) -> float:
+        """The object's bounding sphere as a robot knows it: ``mesh.object_size`` sqrt(3) / 2."""
+        return self.config.mesh.object_size * math.sqrt(3) / 2
 
     def rankers(self) -> list[Planner]:
         """The viewrank planners: one per given model file (several: each named by its file's folder,
@@ -858,6 +1006,19 @@ for _metric, _what in (("occlusion-aware", "visibility-weighted entropy of every
     register_planner(_metric, ("grid", "poses"), f"the unscanned candidate view with the most {_what}; over every "
                      "candidate view, from its coarse ray bundle (`nbvdata.viewfeatures`)", default=False)(
         lambda context, _metric=_metric: [MetricPlanner(_metric, context.views, context.config)])
+register_planner("cover", ("grid", "poses"), "a learned one-shot plan on any view set: the unscanned views a "
+                 "cover-gbm model (`nbvtrain.covermodel`) puts in the state's set cover, visited in the shortest "
+                 "tour's order; predicted again from the state reached once done (re-activation)",
+                 options=("--cover-model FILE (a cover.json of nbvtrain fit --model cover-gbm)",
+                          "--travel-weight L: `cover-travelL`"), default=False)(
+    lambda context: [CoverModelPlanner(context.checkpoint("cover"), context.views, context.config,
+                                       context.robot_radius)])
+register_planner("scvp-net", ("grid",), "SCVP's network (`nbvtrain.covernet`): the views whose probability of being "
+                 "in the cover is >= 0.5, on the one view set it was trained on, in the shortest tour's order; "
+                 "predicted again once done", options=("--scvp-checkpoint FILE (a covernet.pt of nbvtrain fit --model "
+                                                        "scvp-net)", "--travel-weight L: `scvp-net-travelL`"),
+                 default=False)(
+    lambda context: [SCVPNetPlanner(context.checkpoint("scvp-net"), context.views, context.robot_radius)])
 register_planner("hybrid", ("grid", "poses"), "the score network's scores plus a weight times information gain, both "
                  "standardised over the unscanned candidate views, one planner per weight (`hybrid-w1`, ...)",
                  options=("--hybrid-weight W[,W...]",), default=False)(

@@ -62,13 +62,35 @@ def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
         paths[name] = folder / f"{name}.pt"
         save_training_state(paths[name], model, torch.optim.Adam(model.parameters()), TrainConfig(model=name), [], 0,
                             0.4, scene_record(config), units)
+    paths.update(_cover_models(folder, config))
     return paths
+
+
+def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
+    """An untrained scvp-net of the scene's views and a cover-gbm of a few trees on random rows: the
+    cover planners' interface only."""
+    from nbvdata.viewfeatures import FEATURES
+    from nbvtrain._lightgbm import lightgbm
+    from nbvtrain.covermodel import CoverModel
+    from nbvtrain.covernet import CoverNetConfig, network, save_covernet
+
+    torch.manual_seed(0)
+    views = view_sphere(config.views).positions
+    save_covernet(folder / "covernet.pt", network(len(views), 2), CoverNetConfig(width=2), {"view_positions": views}, [])
+    rng = np.random.default_rng(0)
+    rows = rng.random((200, len(FEATURES))).astype(np.float32)
+    booster = lightgbm.train({"objective": "binary", "verbosity": -1, "num_threads": 1, "min_data_in_leaf": 5},
+                             lightgbm.Dataset(rows, label=(rows[:, 0] > 0.5).astype(int)), num_boost_round=3)
+    grid = config.scene_grid
+    CoverModel(booster, (4, 3), {"grid_size": grid.size, "grid_extent": float(grid.extent)}, 0.5, {}).save(
+        folder / "cover.json")
+    return {"cover": folder / "cover.json", "scvp-net": folder / "covernet.pt"}
 
 
 def _learned(checkpoints: dict[str, Path]) -> dict[str, Path]:
     """build_planners' checkpoints: task -> file."""
     return {"regression": checkpoints["nbvnet-3-3"], "classification": checkpoints["nbvnet-class"],
-            "scores": checkpoints["nbvscore-3"]}
+            "scores": checkpoints["nbvscore-3"], "cover": checkpoints["cover"], "scvp-net": checkpoints["scvp-net"]}
 
 
 @pytest.fixture(scope="module")
