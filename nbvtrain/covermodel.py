@@ -265,7 +265,7 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
     split of ``nbvtrain.rankfit.sources_parts``) into ``out``: ``cover.json`` and ``metrics.json``
     (validation quality overall, per layout and per scan step, every threshold's); returns the metrics."""
     from nbvtrain._lightgbm import lightgbm
-    from nbvtrain.rankfit import _scene, sources_parts
+    from nbvtrain.rankfit import _finite, _scene, sources_parts
 
     started = time.perf_counter()
     train_parts, val_parts, records = sources_parts(items, root, seed=config.seed)
@@ -304,5 +304,5 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
                "train_states": len(train.rows), "train_rows": int(len(train.member)), "val_states": len(val.rows),
                "val_rows": int(len(val.member)), "feature_seconds": round(featured - started, 1),
                "model_seconds": round(time.perf_counter() - featured, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
     return metrics

@@ -166,7 +166,7 @@ def fit_covernet(items: list[Path], config: CoverNetConfig, out: Path, root: Pat
     import torch
     from tqdm import tqdm
 
-    from nbvtrain.rankfit import sources_parts
+    from nbvtrain.rankfit import _finite, sources_parts
 
     started = time.perf_counter()
     torch.manual_seed(config.seed)
@@ -212,7 +212,7 @@ def fit_covernet(items: list[Path], config: CoverNetConfig, out: Path, root: Pat
                "val_by_step": {int(step): set_quality(probabilities[val_steps == step], val_covers[val_steps == step])
                                for step in np.unique(val_steps)[:10]},
                "seconds": round(time.perf_counter() - started, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
     with (out / "history.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(history[0]))
         writer.writeheader()
@@ -237,7 +237,7 @@ def save_covernet(path: Path, model, config: CoverNetConfig, scene: dict, source
     state = {"format": FORMAT, "views": int(model.views), "width": int(model.width),
              "view_positions": torch.from_numpy(np.asarray(scene["view_positions"], dtype=np.float64)),
              "state_dict": {key: value.detach().clone() for key, value in model.state_dict().items()},
-             "training": json.loads(json.dumps({"config": asdict(config), "sources": sources}))}
+             "training": json.loads(json.dumps({"config": asdict(config), "sources": sources}, allow_nan=False))}
     partial = path.with_name(path.name + ".partial")
     torch.save(state, partial)
     partial.replace(path)

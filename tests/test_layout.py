@@ -43,8 +43,8 @@ STAGES = (
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
                               "dataset", "checkpoint", "train", "baselines", "predict", "rl")),
-    ("planning", "nbvtrain", ("_lightgbm", "rankdata", "viewrank", "rankfit", "release", "sensordata", "planners",
-                              "plan", "evaluate", "statistics", "benchmark", "benchmark_report", "policy", "cli",
+    ("planning", "nbvtrain", ("_lightgbm", "rankdata", "viewrank", "rankfit", "covermodel", "covernet", "release",
+                              "sensordata", "planners", "plan", "evaluate", "statistics", "benchmark", "benchmark_report", "policy", "cli",
                               "__main__")),
 )
 STAGE = {f"{package}.{module}": number for number, (_, package, modules) in enumerate(STAGES) for module in modules}
