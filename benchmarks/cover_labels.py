@@ -13,7 +13,6 @@ Targets: predicted set size within +25 % of the proved optimum (mean over states
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numba
@@ -28,7 +27,7 @@ from nbvdata.scene import Scene
 from nbvdata.shards import Shard, view_state
 from nbvdata.sources import part_sources
 from nbvdata.views import ViewSet, look_at_rotations
-from nbvtrain.planners import CoverModelPlanner, Observation, SCVPNetPlanner
+from nbvtrain.planners import CoverModelPlanner, Observation, SCVPNetPlanner, robot_radius
 
 
 def main() -> None:
@@ -62,7 +61,7 @@ def main() -> None:
         views = ViewSet(positions, look_at_rotations(positions))
         scene = Scene.build(source.load(config.mesh), config, scene_rng(config.episode.seed, source.mesh_id), 1)
         oracle = scene.oracle
-        radius = config.mesh.object_size * math.sqrt(3) / 2
+        radius = robot_radius(config)
         planners = {"cover": CoverModelPlanner(args.cover_model, views, config, radius)}
         if args.scvp_checkpoint:
             planners["scvp-net"] = SCVPNetPlanner(args.scvp_checkpoint, views, radius)

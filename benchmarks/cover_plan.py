@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import math
-import time
 from pathlib import Path
 
 import numba
@@ -27,8 +25,9 @@ import torch
 from nbvdata.config import SimConfig, from_dict
 from nbvdata.shards import Shard, view_state
 from nbvdata.views import ViewSet, look_at_rotations
-from nbvtrain.planners import CoverModelPlanner, Observation, RankerPlanner, SCVPNetPlanner
+from nbvtrain.planners import CoverModelPlanner, Observation, RankerPlanner, SCVPNetPlanner, robot_radius
 from nbvtrain.release import released_ranker
+from viewfeatures import median_ms  # benchmarks/viewfeatures.py, beside this script
 
 
 def observations(folder: Path, count: int) -> tuple[list[Observation], SimConfig, ViewSet]:
@@ -46,17 +45,6 @@ def observations(folder: Path, count: int) -> tuple[list[Observation], SimConfig
     return found[:count], config, views
 
 
-def median_ms(call, items, repeats: int) -> float:
-    for item in items[:3]:
-        call(item)
-    times = []
-    for k in range(repeats):
-        started = time.perf_counter()
-        call(items[k % len(items)])
-        times.append(time.perf_counter() - started)
-    return 1e3 * float(np.median(times))
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--shards", type=Path, required=True)
@@ -68,7 +56,7 @@ def main() -> None:
     numba.set_num_threads(1)
     torch.set_num_threads(1)
     items, config, views = observations(args.shards, args.states)
-    radius = config.mesh.object_size * math.sqrt(3) / 2
+    radius = robot_radius(config)
     planners = {"viewrank (one decision, baseline)": RankerPlanner(released_ranker(), views, config),
                 "cover (a whole plan)": CoverModelPlanner(args.cover_model, views, config, radius),
                 "cover-travel2 (a whole plan)": CoverModelPlanner(args.cover_model, views, config, radius, 2.0)}

@@ -149,6 +149,14 @@ def _fit_cover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cover_model_flags(parser: argparse.ArgumentParser) -> None:
+    """evaluate's and benchmark's files of the cover planners (``nbvtrain.planners.CoverPlanner``)."""
+    parser.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
+                        "--model cover-gbm (docs/setcover.md)")
+    parser.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
+                        "fit --model scvp-net (docs/setcover.md)")
+
+
 def _rays(text: str) -> tuple[int, int]:
     """'16x12' -> (16, 12)."""
     try:
@@ -486,7 +494,8 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     from nbvtrain.benchmark import BENCH_MESHES, benchmark, load_protocol, protocol_config
     from nbvtrain.benchmark_report import write_benchmark
     from nbvtrain.evaluate import settings_dict
-    from nbvtrain.planners import PLANNERS, CoverPlanner, TravelPlanner, build_planners, default_planners
+    from nbvtrain.planners import (PLANNERS, CoverPlanner, TravelPlanner, build_planners, default_planners,
+                                   robot_radius)
 
     protocol = load_protocol(args.protocol)
     weights = _numbers(args.travel_weight, "--travel-weight") if args.travel_weight is not None else []
@@ -527,7 +536,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
                                        foreign_views=protocol.snap)
     for message in skipped:
         print(f"nbvtrain benchmark: {message}", file=sys.stderr)
-    radius = config.mesh.object_size * math.sqrt(3) / 2  # what a robot knows of the object's bounding sphere
+    radius = robot_radius(config)
     planners += [TravelPlanner(planner, weight, radius) if hasattr(planner, "candidate_scores") else planner.travel(weight)
                  for weight in weights for planner in list(planners)
                  if hasattr(planner, "candidate_scores") or isinstance(planner, CoverPlanner)]
@@ -783,10 +792,7 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
                           "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
     evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
-    evaluate.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
-                          "--model cover-gbm (docs/setcover.md)")
-    evaluate.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
-                          "fit --model scvp-net (docs/setcover.md)")
+    _cover_model_flags(evaluate)
     evaluate.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")
@@ -882,10 +888,7 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
                        "longest); and cover and scvp-net dropping each planned view whose detour in the tour (view-"
                        "sphere radii) times L exceeds its probability; one planner NAME-travelL per weight "
                        "(docs/benchmark.md, docs/setcover.md)")
-    bench.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
-                          "--model cover-gbm (docs/setcover.md)")
-    bench.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
-                          "fit --model scvp-net (docs/setcover.md)")
+    _cover_model_flags(bench)
     bench.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")

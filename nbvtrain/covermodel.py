@@ -27,13 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.config import ConfigError, SimConfig
+from nbvdata.config import SimConfig
 from nbvdata.files import write_atomic
 from nbvdata.shards import Shard, ShardError, has_covers
 from nbvdata.views import ViewSet
 from nbvdata.viewfeatures import BUNDLE, FEATURES, view_features
 from nbvtrain.checkpoint import CheckpointError
 from nbvtrain.rankdata import RankingData, bundle_for
+from nbvtrain.viewrank import check_grid, check_rows
 
 FORMAT = "nbvtrain-cover"
 FORMAT_VERSION = 1
@@ -59,10 +60,7 @@ class CoverModelConfig:
     threads: int = 2
 
     def __post_init__(self) -> None:
-        if len(self.rays) != 2 or min(self.rays) < 1:
-            raise ConfigError(f"rays={self.rays}: give WIDTHxHEIGHT rays per view, each >= 1")
-        if self.sample < 0 or 0 < self.sample < 4:
-            raise ConfigError(f"sample={self.sample}: give 0 (every row) or at least 4 rows per state")
+        check_rows(self.rays, self.sample)
 
 
 @dataclass
@@ -217,11 +215,7 @@ class CoverModel:
 
     def check_scene(self, config: SimConfig, where: str) -> None:
         """ConfigError when ``config``'s grid is not the one the model was trained on."""
-        grid = config.scene_grid
-        size, extent = self.scene.get("grid_size"), self.scene.get("grid_extent")
-        if size is not None and (size != grid.size or abs(extent - grid.extent) > 1e-6):
-            raise ConfigError(f"{where}: a cover model trained on {size}^3 grids of {extent:.4f} m, this run's are "
-                              f"{grid.size}^3 of {grid.extent:.4f} m: run with the grid settings it was trained with")
+        check_grid(self.scene, config, where, "a cover model")
 
     def save(self, path: Path) -> None:
         head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": list(FEATURES),

@@ -140,22 +140,14 @@ def cover_states(parts, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
             {"view_positions": views})
 
 
-def set_quality(probabilities: np.ndarray, covers: np.ndarray, taken: np.ndarray | None = None,
-                threshold: float = THRESHOLD) -> dict:
-    """Label quality of predicted sets (views with probability >= ``threshold``, scanned ones
-    ``taken`` (N, V) left out) against ``covers`` (N, V) bool: mean predicted and optimal size,
-    per-state precision and recall of membership (SCVP's), exact-set share."""
-    predicted = probabilities >= threshold
-    if taken is not None:
-        predicted &= ~taken
-    hits = (predicted & covers).sum(axis=1)
-    sizes, optimal = predicted.sum(axis=1), covers.sum(axis=1)
-    keep = optimal > 0
-    return {"states": int(keep.sum()), "predicted_size": float(sizes[keep].mean()) if keep.any() else float("nan"),
-            "optimal_size": float(optimal[keep].mean()) if keep.any() else float("nan"),
-            "precision": float(np.mean(np.where(sizes[keep] > 0, hits[keep] / np.maximum(sizes[keep], 1), 0.0))),
-            "recall": float(np.mean(hits[keep] / optimal[keep])) if keep.any() else float("nan"),
-            "exact": float(np.mean((predicted[keep] == covers[keep]).all(axis=1))) if keep.any() else float("nan")}
+def set_quality(probabilities: np.ndarray, covers: np.ndarray) -> dict:
+    """``nbvtrain.covermodel.set_quality`` of SCVP's sets (the views of probability >= ``THRESHOLD``)
+    against ``covers``, both (N, V) over every candidate view of each state."""
+    from nbvtrain.covermodel import set_quality as quality
+
+    count, views = covers.shape
+    return quality((probabilities >= THRESHOLD).ravel(), covers.ravel(), np.full(count, views),
+                   covers.sum(axis=1))
 
 
 def fit_covernet(items: list[Path], config: CoverNetConfig, out: Path, root: Path | None = None,

@@ -383,10 +383,10 @@ none is released the released score network; ``nbvtrain.release``);
     if kind is not None:
         if tta:
             raise PlanError(f"--tta: {path} is a set-cover model, which plan runs as it is: drop --tta")
-        from nbvtrain.planners import CoverModelPlanner, SCVPNetPlanner, Skipped
+        from nbvtrain.planners import CoverModelPlanner, SCVPNetPlanner, Skipped, robot_radius
 
         config = config or SimConfig()
-        views, radius = view_sphere(config.views), config.mesh.object_size * math.sqrt(3) / 2
+        views, radius = view_sphere(config.views), robot_radius(config)
         if kind == "cover":
             return CoverPlanPlanner(CoverModelPlanner(path, views, config, radius), config)
         try:

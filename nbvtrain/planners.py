@@ -96,6 +96,12 @@ READS = {"grid": "the grid", "poses": "the poses scanned", "points": "the points
 """What a planner may decide from (``PlannerKind.reads``), in the docs' words."""
 
 
+def robot_radius(config: SimConfig) -> float:
+    """The object's bounding sphere as a robot knows it (metres): ``mesh.object_size`` sqrt(3) / 2, the
+    half-diagonal of the cube its largest side spans; the sphere a path round the object avoids."""
+    return config.mesh.object_size * math.sqrt(3) / 2
+
+
 @dataclass(frozen=True)
 class Observation:
     """What a robot knows at a state.
@@ -793,7 +799,6 @@ class CoverModelPlanner(CoverPlanner):
         self.name, self.model, self.config = name, model, config
         self.cover = load_cover_model(model)
         self.cover.check_scene(config, str(model))
-        self.threshold = self.cover.threshold
 
     def __reduce__(self):
         """Pickled as its arguments: a worker process loads the model file itself."""
@@ -908,15 +913,7 @@ class PlannerContext:
         try:
             return released_checkpoint(task)
         except NoReleasedModel as reason:
-            flag = {"cover": "--cover-model runs/cover-gbm/cover.json",
-                    "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt"}.get(task)
-            raise Skipped(f"no {task} model is released with this package: pass {flag}" if flag else str(reason)) \
-                from None
-
-    @property
-    def robot_radius(self) -> float:
-        """The object's bounding sphere as a robot knows it: ``mesh.object_size`` sqrt(3) / 2."""
-        return self.config.mesh.object_size * math.sqrt(3) / 2
+            raise Skipped(str(reason)) from None
 
     def rankers(self) -> list[Planner]:
         """The viewrank planners: one per given model file (several: each named by its file's folder,
@@ -1012,13 +1009,13 @@ register_planner("cover", ("grid", "poses"), "a learned one-shot plan on any vie
                  options=("--cover-model FILE (a cover.json of nbvtrain fit --model cover-gbm)",
                           "--travel-weight L: `cover-travelL`"), default=False)(
     lambda context: [CoverModelPlanner(context.checkpoint("cover"), context.views, context.config,
-                                       context.robot_radius)])
+                                       robot_radius(context.config))])
 register_planner("scvp-net", ("grid",), "SCVP's network (`nbvtrain.covernet`): the views whose probability of being "
                  "in the cover is >= 0.5, on the one view set it was trained on, in the shortest tour's order; "
                  "predicted again once done", options=("--scvp-checkpoint FILE (a covernet.pt of nbvtrain fit --model "
                                                         "scvp-net)", "--travel-weight L: `scvp-net-travelL`"),
                  default=False)(
-    lambda context: [SCVPNetPlanner(context.checkpoint("scvp-net"), context.views, context.robot_radius)])
+    lambda context: [SCVPNetPlanner(context.checkpoint("scvp-net"), context.views, robot_radius(context.config))])
 register_planner("hybrid", ("grid", "poses"), "the score network's scores plus a weight times information gain, both "
                  "standardised over the unscanned candidate views, one planner per weight (`hybrid-w1`, ...)",
                  options=("--hybrid-weight W[,W...]",), default=False)(

@@ -59,13 +59,18 @@ def released_files(folder: Path | None = None) -> dict[str, str]:
     return {task: name for task, name in files.items() if isinstance(name, str) and name == Path(name).name}
 
 
+PASS_INSTEAD = {"cover": "--cover-model runs/cover-gbm/cover.json",
+                "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt"}
+"""What to pass for a task whose model is no network checkpoint (``released_checkpoint``'s message)."""
+
+
 def released_checkpoint(task: str = "scores") -> Path:
     """The released checkpoint of ``task`` (scores or regression); ``NoReleasedModel`` otherwise."""
     name = released_files().get(task)
     path = released_folder() / name if name else None
     if path is None or not path.is_file():
-        raise NoReleasedModel(f"no {task} model is released with this package: pass a checkpoint written by nbvtrain "
-                              "fit (runs/NAME/best.pt)")
+        instead = PASS_INSTEAD.get(task, "a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
+        raise NoReleasedModel(f"no {task} model is released with this package: pass {instead}")
     return path
 
 

@@ -84,10 +84,26 @@ class RankerConfig:
     def __post_init__(self) -> None:
         if self.model not in KINDS:
             raise ConfigError(f"--model {self.model}: a ranker is one of {', '.join(KINDS)}")
-        if len(self.rays) != 2 or min(self.rays) < 1:
-            raise ConfigError(f"rays={self.rays}: give WIDTHxHEIGHT rays per view, each >= 1")
-        if self.sample < 0 or self.sample == 1 or self.sample in (2, 3):
-            raise ConfigError(f"sample={self.sample}: give 0 (every row) or at least 4 rows per state")
+        check_rows(self.rays, self.sample)
+
+
+def check_rows(rays: tuple[int, int], sample: int) -> None:
+    """ConfigError unless ``rays`` is (width, height) >= 1 and ``sample`` 0 or >= 4 rows per state:
+    the settings of the per-view rows a model of features trains on (a ranker, ``nbvtrain.covermodel``)."""
+    if len(rays) != 2 or min(rays) < 1:
+        raise ConfigError(f"rays={rays}: give WIDTHxHEIGHT rays per view, each >= 1")
+    if sample < 0 or 0 < sample < 4:
+        raise ConfigError(f"sample={sample}: give 0 (every row) or at least 4 rows per state")
+
+
+def check_grid(scene: dict, config: SimConfig, where: str, what: str) -> None:
+    """ConfigError when ``config``'s grid is not ``scene``'s ({grid_size, grid_extent}), the one ``what``
+    (a ranker, a cover model) was trained on."""
+    grid = config.scene_grid
+    size, extent = scene.get("grid_size"), scene.get("grid_extent")
+    if size is not None and (size != grid.size or abs(extent - grid.extent) > 1e-6):
+        raise ConfigError(f"{where}: {what} trained on {size}^3 grids of {extent:.4f} m, this run's are "
+                          f"{grid.size}^3 of {grid.extent:.4f} m: run with the grid settings it was trained with")
 
 
 class ViewRanker:
@@ -121,12 +137,8 @@ class ViewRanker:
             return self.network(x).double().numpy().reshape(-1)
 
     def check_scene(self, config: SimConfig, where: str) -> None:
-        """ConfigError when ``config``'s grid is not the one the ranker was trained on."""
-        grid = config.scene_grid
-        size, extent = self.scene.get("grid_size"), self.scene.get("grid_extent")
-        if size is not None and (size != grid.size or abs(extent - grid.extent) > 1e-6):
-            raise ConfigError(f"{where}: a ranker trained on {size}^3 grids of {extent:.4f} m, this run's are "
-                              f"{grid.size}^3 of {grid.extent:.4f} m: run with the grid settings it was trained with")
+        """ConfigError when ``config``'s grid is not the one the ranker was trained on (``check_grid``)."""
+        check_grid(self.scene, config, where, "a ranker")
 
     def view_scores(self, probabilities: np.ndarray, scanned: np.ndarray, views: ViewSet,
                     config: SimConfig) -> np.ndarray:
