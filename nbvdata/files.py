@@ -6,6 +6,7 @@ reader of the project's files shares (no simulation, no HDF5).
   writers that died (a kill).
 - ``process_tag``: HOST-PID, a name part no other process on any machine sharing a folder uses.
 - ``sha256_file``: the hex sha256 of a file's bytes (manifests, meshes, checkpoints).
+- ``shown_path``: a path as a file that others read may record it (no local roots).
 """
 
 from __future__ import annotations
@@ -75,3 +76,13 @@ def sha256_file(path: str | Path) -> str:
         for chunk in iter(lambda: handle.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` relative to the working folder where it lies below it, else its name: how a file
+    meant for others (a model file, a card) names a local path, never with this machine's roots."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return path.name

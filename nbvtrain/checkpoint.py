@@ -11,10 +11,18 @@ Every checkpoint is read here, with ``torch.load(weights_only=True)``: a file th
 pickled Python objects is refused, so no code from it runs. Anything that is not a checkpoint
 (missing, empty, text, other bytes, a torch file lacking the keys) raises ``CheckpointError``
 with one line that names the file and the fix.
+
+**Weights checksum.** torch reads a damaged tensor without a word (its zip records carry no
+check it makes), so every torch model file this package writes - checkpoints
+(``save_checkpoint``), ``viewrank-mlp`` rankers, ``scvp-net`` covers, RL actors - also holds
+``weights_sha256``: the sha256 of its weights (``weights_digest``), checked before the weights
+reach a network (``check_weights``). A file written before the checksums existed has none and
+loads as before.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import pickletools
@@ -40,11 +48,49 @@ class CheckpointError(UserError):
     """A checkpoint that cannot be read or trusted; the one-line message names the fix."""
 
 
+WEIGHTS_KEY = "weights_sha256"
+"""The key of a torch model file's weights checksum (module docstring)."""
+
+
 def save_checkpoint(path: Path, state: dict) -> None:
-    """Write ``state`` (converted to plain data, see ``plain``) to ``path`` whole or not at all."""
+    """Write ``state`` (converted to plain data, see ``plain``) with the checksum of its
+    ``state_dict`` (``WEIGHTS_KEY``) to ``path`` whole or not at all."""
+    state = plain(state)
+    state[WEIGHTS_KEY] = weights_digest(state["state_dict"])
     partial = path.with_name(path.name + ".partial")
-    torch.save(plain(state), partial)
+    torch.save(state, partial)
     os.replace(partial, path)
+
+
+def weights_digest(*state_dicts: dict) -> str:
+    """The sha256 of the tensors of ``state_dicts`` (name -> tensor, in name order): each name,
+    dtype, shape and the tensor's bytes - what changes when a stored weight does."""
+    digest = hashlib.sha256()
+    for state_dict in state_dicts:
+        for name in sorted(state_dict):
+            tensor = state_dict[name]
+            if not isinstance(tensor, torch.Tensor):
+                raise TypeError(f"weights_digest: {name} is a {type(tensor).__name__}, not a tensor")
+            tensor = tensor.detach().cpu().contiguous()
+            digest.update(f"{name}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())
+            digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def check_weights(state: dict, path: Path, fix: str, *keys: str) -> None:
+    """CheckpointError when the loaded torch file ``state`` records ``WEIGHTS_KEY`` and the weights
+    under ``keys`` (each a name -> tensor dict; default ``state_dict``) do not give it: a damaged
+    file, refused before any network reads a weight. A file without the checksum passes."""
+    recorded = state.get(WEIGHTS_KEY)
+    if recorded is None:
+        return
+    try:
+        actual = weights_digest(*(state[key] for key in keys or ("state_dict",)))
+    except (KeyError, TypeError, AttributeError, RuntimeError) as error:
+        raise CheckpointError(f"{path}: its weights are unreadable ({type(error).__name__}); {fix}") from None
+    if actual != recorded:
+        raise CheckpointError(f"{path}: damaged (its weights' sha256 is {actual[:12]}..., the file records "
+                              f"{str(recorded)[:12]}...): restore it from where it came, or {fix[0].lower() + fix[1:]}")
 
 
 def plain(value):
@@ -87,6 +133,7 @@ def load_checkpoint(path: str | Path, fix: str = USE_FIT, keys: tuple[str, ...] 
     wrong = [key for key in keys if key in kinds and not isinstance(state[key], kinds[key])]
     if wrong:
         raise CheckpointError(f"{path}: not an nbvtrain checkpoint (malformed {', '.join(wrong)}); {fix}")
+    check_weights(state, path, fix)
     return state
 
 

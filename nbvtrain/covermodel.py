@@ -218,15 +218,19 @@ class CoverModel:
         check_grid(self.scene, config, where, "a cover model")
 
     def save(self, path: Path) -> None:
+        from nbvtrain._lightgbm import TEXT_KEY, text_digest
+
+        model = self.booster.model_to_string()
         head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": list(FEATURES),
                 "rays": list(self.rays), "scene": self.scene, "threshold": self.threshold, "training": self.training,
-                "lightgbm": self.booster.model_to_string()}
+                TEXT_KEY: text_digest(model), "lightgbm": model}
         write_atomic(Path(path), json.dumps(head, indent=1, allow_nan=False))
 
 
 def load_cover_model(path: str | Path) -> CoverModel:
-    """The ``cover-gbm`` model in ``path``; CheckpointError naming the file and the fix for anything else."""
-    from nbvtrain._lightgbm import lightgbm
+    """The ``cover-gbm`` model in ``path``; CheckpointError naming the file and the fix for anything else
+    (a damaged LightGBM text included: ``nbvtrain._lightgbm.load_booster``)."""
+    from nbvtrain._lightgbm import load_booster
 
     path = Path(path)
     if not path.is_file():
@@ -243,11 +247,7 @@ def load_cover_model(path: str | Path) -> CoverModel:
     if head["features"] != list(FEATURES):
         raise CheckpointError(f"{path}: a cover model of other features ({len(head['features'])} columns, this "
                               f"nbvtrain computes {len(FEATURES)}); retrain it with nbvtrain fit --model cover-gbm")
-    try:
-        booster = lightgbm.Booster(model_str=head["lightgbm"])
-    except lightgbm.basic.LightGBMError as error:
-        raise CheckpointError(f"{path}: its LightGBM model does not load ({str(error).splitlines()[0][:120]}); "
-                              f"{USE_FIT}") from None
+    booster = load_booster(head, path, USE_FIT, CheckpointError)
     model = CoverModel(booster, tuple(head["rays"]), head["scene"], float(head["threshold"]), head["training"])
     model.path = path
     return model

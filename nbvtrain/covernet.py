@@ -36,7 +36,7 @@ import numpy as np
 
 from nbvdata.config import ConfigError
 from nbvdata.shards import Shard, ShardError, has_covers
-from nbvtrain.checkpoint import CheckpointError
+from nbvtrain.checkpoint import WEIGHTS_KEY, CheckpointError, check_weights, weights_digest
 
 POSITIVE_WEIGHT = 2.0  # SCVP's weight of a label-1 output in the summed squared error (negatives: 1)
 THRESHOLD = 0.5  # a view is in the predicted set when its probability reaches this (SCVP's)
@@ -230,6 +230,7 @@ def save_covernet(path: Path, model, config: CoverNetConfig, scene: dict, source
              "view_positions": torch.from_numpy(np.asarray(scene["view_positions"], dtype=np.float64)),
              "state_dict": {key: value.detach().clone() for key, value in model.state_dict().items()},
              "training": json.loads(json.dumps({"config": asdict(config), "sources": sources}, allow_nan=False))}
+    state[WEIGHTS_KEY] = weights_digest(state["state_dict"])
     partial = path.with_name(path.name + ".partial")
     torch.save(state, partial)
     partial.replace(path)
@@ -262,6 +263,7 @@ def load_covernet(path: str | Path) -> CoverNet:
         raise CheckpointError(f"{path}: not a scvp-net checkpoint ({type(error).__name__}); {USE_FIT}") from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a scvp-net checkpoint (no format {FORMAT!r}); {USE_FIT}")
+    check_weights(state, path, USE_FIT)
     try:
         model = network(int(state["views"]), int(state["width"]))
         model.load_state_dict(state["state_dict"])

@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from nbvdata.config import ConfigError
+from nbvdata.files import shown_path
 from nbvdata.manifest import mesh_split, open_verified
 from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
@@ -47,7 +48,9 @@ class Part:
 
 def sources_parts(items: list[Path], root: Path | None = None, val_fraction: float = 0.2,
                   seed: int = 0) -> tuple[list[Part], list[Part], list[dict]]:
-    """(train parts, val parts, a record per source) of manifests and shard folders.
+    """(train parts, val parts, a record per source) of manifests and shard folders (a manifest's
+    record: its name, version and sha256; a folder's: its path as ``shown_path`` gives it - no
+    local roots, for the model files that carry the records).
 
     One split holds for every source, so that no object trains under one view set and validates
     under another: the mesh split of the first manifest (its val meshes validate, its test meshes
@@ -71,7 +74,7 @@ def sources_parts(items: list[Path], root: Path | None = None, val_fraction: flo
             held = {part: set(mesh.get(part, {}).get("meshes", [])) for part in ("val", "test")}
             records.append({"split_from": published.label})
         shards += [(path, entry["sha256"]) for entry, path in zip(published.content["shards"], published.shard_paths)]
-        records.append(published.identity)
+        records.append({key: published.identity[key] for key in ("name", "version", "sha256")})
     folders = [item for item in items if Path(item).suffix != ".json"]
     shards += [(path, None) for path in (shard_files(folders) if folders else [])]
     ids = []
@@ -85,9 +88,10 @@ def sources_parts(items: list[Path], root: Path | None = None, val_fraction: flo
         if isinstance(parts, str):
             raise ShardError(f"the shards of {', '.join(map(str, folders))}: {parts}; give more meshes")
         held = {"val": set(parts["val"].tolist()), "test": set()}
-        records.append({"folders": [str(folder) for folder in folders], "val_fraction": val_fraction, "seed": seed})
+        records.append({"folders": [shown_path(folder) for folder in folders], "val_fraction": val_fraction,
+                        "seed": seed})
     elif folders:
-        records.append({"folders": [str(folder) for folder in folders]})
+        records.append({"folders": [shown_path(folder) for folder in folders]})
     train, val = [], []
     for (path, digest), mesh_ids in zip(shards, ids):
         is_val = np.isin(mesh_ids, list(held["val"]))

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 from collections import Counter
 from importlib import resources
 from pathlib import Path
@@ -29,6 +30,7 @@ import yaml
 
 from nbvdata.config import ConfigError
 from nbvdata.errors import UserError
+from nbvdata.files import shown_path
 
 NETWORKS = ("scores", "regression")
 """The released networks' tasks (their checkpoints: torch files, ``released_checkpoint``)."""
@@ -153,7 +155,7 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
         slim = {key: state[key] for key in KEEP if key in state}
         slim["state_dict"] = {key: value.half() if value.is_floating_point() else value
                               for key, value in state["state_dict"].items()}
-        slim["released_from"] = str(checkpoint)
+        slim["released_from"] = shown_path(checkpoint)
         path = out / f"{state['model']}.pt"
         history = _run_history(run, state)
         lineage = _lineage(data, state, history)  # before writing: the run may have started from the file it replaces
@@ -228,7 +230,7 @@ def _ranker_section(source: Path, path: Path, metrics: dict) -> str:
     lines = [f"## viewrank: {metrics['model']} (`{path.name}` beside this card, {path.stat().st_size / 2 ** 20:.1f} MiB)",
              "",
              f"- A ranker of candidate views from per-view features (`nbvtrain.viewrank`), any view set; released from "
-             f"`{_shown(source)}`.",
+             f"`{shown_path(source)}`.",
              f"- Data: {data or 'shard folders'}; one mesh split for all ({split}): "
              f"{metrics['train_states']} training states ({metrics['train_rows']} rows), {metrics['val_states']} "
              f"validation states (every unscanned view); labels: {metrics['target']} gains.",
@@ -321,14 +323,6 @@ def _card_section(task: str, run: Path, checkpoint: Path, state: dict, path: Pat
     return "\n".join(lines)
 
 
-def _shown(path: Path) -> str:
-    """``path`` relative to the working folder where it lies below it, else its name (no local roots in a card)."""
-    try:
-        return str(path.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return path.name
-
-
 def _added_lines(data: dict) -> list[str]:
     """The card's line on shards ``fit --add-train`` added to the training part (DAgger rounds), one
     clause per folder, with the policy that rolled it where its ``policy.yaml`` is still there."""
@@ -341,7 +335,7 @@ def _added_lines(data: dict) -> list[str]:
         rolled = yaml.safe_load(policy.read_text()) if policy.is_file() else None
         by = (f", rolled by {rolled.get('network')} (sha256 {str(rolled.get('sha256'))[:12]})"
               if isinstance(rolled, dict) else "")
-        clauses.append(f"{count} shards of `{_shown(folder)}`{by}")
+        clauses.append(f"{count} shards of `{shown_path(folder)}`{by}")
     return [f"- Added to the training part (`fit --add-train`, every state labelled exactly): {'; '.join(clauses)}."]
 
 
@@ -356,7 +350,7 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
     init = data.get("init")
     while isinstance(init, dict) and init["sha256"] not in seen:  # (a hand-edited data.json could loop)
         seen.add(init["sha256"])
-        steps.append(f"`{_shown(Path(init['path']))}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
+        steps.append(f"`{shown_path(Path(init['path']))}` (epoch {init['epoch']}, sha256 {init['sha256'][:12]})")
         epochs += init["epoch"]
         init = completed_init_record(init)
         if "seconds" not in init:  # the ancestor is not on this machine (or not as it was)
@@ -372,13 +366,14 @@ def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
 
 
 def _evaluate_arguments(path: Path) -> list[str]:
-    """The ``evaluate:`` block of an evaluation's config.yaml (its arguments), as lines."""
+    """The ``evaluate:`` block of an evaluation's config.yaml (its arguments), as lines, every
+    absolute path in it as ``shown_path`` gives it (a card records no local roots)."""
     lines = path.read_text().splitlines() if path.is_file() else []
     block = lines[:1]
     for line in lines[1:]:
         if not line.startswith((" ", "-")):
             break
-        block.append(line)
+        block.append(re.sub(r"(?<=[:\-] )/\S+", lambda found: shown_path(found.group(0)), line))
     return block
 
 

@@ -39,7 +39,8 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-from nbvtrain.checkpoint import CheckpointError, load_checkpoint, model_from
+from nbvtrain.checkpoint import (WEIGHTS_KEY, CheckpointError, check_weights, load_checkpoint, model_from,
+                                 weights_digest)
 from nbvtrain.models import ScoreNet, build_model
 
 Logits = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -98,9 +99,10 @@ def identity_head(head: nn.Linear, scale: float = 1.0) -> None:
 def save_actor(path: str | Path, features: ScoreFeatures, head: nn.Linear, about: dict) -> None:
     """The actor (score network and head) as tensors, with ``about`` (plain values: the stage,
     its settings, its validation figures)."""
+    network, head = features.network.state_dict(), head.state_dict()
     torch.save({"kind": "nbvtrain.rl actor", "model": SCORE_MODEL, "views": torch.from_numpy(features.views),
-                "dropout_from": features.network.dropout_from,
-                "network": features.network.state_dict(), "head": head.state_dict(), "about": about}, path)
+                "dropout_from": features.network.dropout_from, "network": network, "head": head, "about": about,
+                WEIGHTS_KEY: weights_digest(network, head)}, path)
 
 
 def load_actor(path: str | Path) -> tuple[Logits, dict]:
@@ -116,6 +118,7 @@ def load_actor(path: str | Path) -> tuple[Logits, dict]:
                               "python examples/rl_sb3.py") from None
     if not isinstance(state, dict) or state.get("kind") != "nbvtrain.rl actor":
         raise CheckpointError(f"{path}: not an actor saved by nbvtrain.rl; train one with python examples/rl_sb3.py")
+    check_weights(state, path, "train one with python examples/rl_sb3.py", "network", "head")
     try:
         network = score_network(state["views"].double().numpy(), dropout_from=state["dropout_from"])
         network.load_state_dict(state["network"])

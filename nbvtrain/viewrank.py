@@ -37,7 +37,7 @@ from nbvdata.config import ConfigError, SimConfig
 from nbvdata.files import write_atomic
 from nbvdata.views import ViewSet
 from nbvdata.viewfeatures import BUNDLE, FEATURES, view_features
-from nbvtrain.checkpoint import CheckpointError
+from nbvtrain.checkpoint import CheckpointError, check_weights
 from nbvtrain.rankdata import RankingData, bundle_for
 
 KINDS = ("viewrank-gbm", "viewrank-mlp")
@@ -151,14 +151,20 @@ class ViewRanker:
         head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": self.features,
                 "rays": list(self.rays), "scene": self.scene, "training": self.training}
         if self.booster is not None:
-            text = json.dumps(head | {"lightgbm": self.booster.model_to_string()}, indent=1, allow_nan=False)
+            from nbvtrain._lightgbm import TEXT_KEY, text_digest
+
+            model = self.booster.model_to_string()
+            text = json.dumps(head | {TEXT_KEY: text_digest(model), "lightgbm": model}, indent=1, allow_nan=False)
             write_atomic(Path(path), text)
             return
         import torch
 
-        state = head | {"state_dict": {key: value.detach().clone() for key, value in self.network.state_dict().items()},
-                        "hidden": list(self.training.get("hidden", [])), "mean": torch.from_numpy(self.mean.copy()),
-                        "std": torch.from_numpy(self.std.copy())}
+        from nbvtrain.checkpoint import WEIGHTS_KEY, weights_digest
+
+        weights = {"state_dict": {key: value.detach().clone() for key, value in self.network.state_dict().items()},
+                   "mean": torch.from_numpy(self.mean.copy()), "std": torch.from_numpy(self.std.copy())}
+        state = head | weights | {"hidden": list(self.training.get("hidden", [])),
+                                  WEIGHTS_KEY: weights_digest(weights["state_dict"], _moments(weights))}
         partial = path.with_name(path.name + ".partial")
         torch.save(state, partial)
         partial.replace(path)
@@ -195,15 +201,9 @@ def load_ranker(path: str | Path) -> ViewRanker:
         except (UnicodeDecodeError, json.JSONDecodeError) as error:
             raise CheckpointError(f"{path}: not a ranker file (not JSON: {type(error).__name__}); {USE_FIT}") from None
         _check_head(head, path, "viewrank-gbm")
-        if not isinstance(head.get("lightgbm"), str):
-            raise CheckpointError(f"{path}: a ranker file without its LightGBM model; {USE_FIT}")
-        from nbvtrain._lightgbm import lightgbm
+        from nbvtrain._lightgbm import load_booster
 
-        try:
-            booster = lightgbm.Booster(model_str=head["lightgbm"])
-        except lightgbm.basic.LightGBMError as error:
-            raise CheckpointError(f"{path}: its LightGBM model does not load ({str(error).splitlines()[0][:120]}); "
-                                  f"{USE_FIT}") from None
+        booster = load_booster(head, path, USE_FIT, CheckpointError)
         if booster.num_feature() != len(head["features"]):
             raise CheckpointError(f"{path}: its LightGBM model reads {booster.num_feature()} features, the file "
                                   f"names {len(head['features'])}; {USE_FIT}")
@@ -218,6 +218,7 @@ def load_ranker(path: str | Path) -> ViewRanker:
             raise CheckpointError(f"{path}: not a ranker file ({type(error).__name__}: "
                                   f"{' '.join(str(error).split())[:100]}); {USE_FIT}") from None
         _check_head(state, path, "viewrank-mlp")
+        check_weights(state | {"moments": _moments(state)}, path, USE_FIT, "state_dict", "moments")
         try:
             network = scorer(len(state["features"]), tuple(state["hidden"]))
             network.load_state_dict(state["state_dict"])
@@ -233,6 +234,11 @@ def load_ranker(path: str | Path) -> ViewRanker:
                               f"{ranker.kind})")
     ranker.path = path
     return ranker
+
+
+def _moments(state: dict) -> dict:
+    """The standardisation tensors of a ``viewrank-mlp`` file, checked with its weights."""
+    return {key: state[key] for key in ("mean", "std") if key in state}
 
 
 def _check_head(head, path: Path, kind: str) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from nbvdata.files import shown_path
 from nbvtrain.release import (CARD, NETWORKS, REFERENCE, TASKS, ranker_reference_answer, reference_answer,
                               reference_grid, released_checkpoint, released_files, released_ranker)
 
@@ -142,7 +143,7 @@ def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_
     assert "## How they were chosen\n\nChosen on the validation objects in closed loop." in card
     assert card_section(out / CARD, "regression") == regression_section
     assert list(json.loads((out / REFERENCE).read_text())) == list(NETWORKS)  # the card's order, scores released last
-    assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == str(snapshot)
+    assert torch.load(out / "nbvscore-3.pt", weights_only=True)["released_from"] == shown_path(snapshot)
     assert nbvtrain(["release", "--regression", str(runs["nbvnet-3-3"]), "--out", str(out)]) == 0
     card = (out / CARD).read_text()
     assert "Chosen on the validation objects in closed loop." in card and "## scores: nbvscore-3" in card
