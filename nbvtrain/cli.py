@@ -172,10 +172,10 @@ def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
     from nbvtrain.predict import GridError, Predictor, prediction_dict
 
-    from nbvtrain.release import released_checkpoint
+    from nbvtrain.release import released_ranker
     from nbvtrain.viewrank import is_ranker_file
 
-    checkpoint = args.checkpoint or released_checkpoint("scores")
+    checkpoint = args.checkpoint or released_ranker()  # the default of every command: docs/released-models.md
     if is_ranker_file(checkpoint):
         return _predict_ranker(args, checkpoint)
     predictor = Predictor(checkpoint, device=args.device, k=args.k, radius=args.radius, tta=args.tta)
@@ -236,8 +236,10 @@ def _not_a_grid(path: Path) -> str:
 
 def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
     """``predict`` with a ranker: the candidate view it ranks first, as JSON, for a shard sample (its
-    run's views and scans) or a .npy grid (the default scene's views, --scanned or --scanned-at)."""
+    run's views and scans) or a .npy of one grid or (B, n, n, n) grids (the default scene's views,
+    --scanned or --scanned-at; B grids: a list of B answers), each grid checked as a network's is."""
     from nbvdata.config import SimConfig
+    from nbvdata.userarrays import GridError, check_grids
     from nbvdata.views import ViewSet, look_at_rotations, parse_view_indices, scanned_views, view_sphere
     from nbvtrain.viewrank import load_ranker
 
@@ -245,9 +247,9 @@ def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
     for flag in ("tta", "radius"):
         if getattr(args, flag) not in (None, False):
             raise ConfigError(f"--{flag}: not an option of a ranker ({ranker.kind}); leave it out")
-    if args.grid.suffix == ".npy":
+    if args.grid.suffix == ".npy" or not is_hdf5(args.grid):  # by its bytes: a grid, or no shard either
         try:
-            grid, source = read_npy(args.grid), str(args.grid)
+            grid, source = read_npy(args.grid, _not_a_grid(args.grid)), str(args.grid)
         except NpyError as error:
             raise ShardError(str(error)) from None
         config = SimConfig()
@@ -266,8 +268,11 @@ def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
         views = ViewSet(view_positions, look_at_rotations(view_positions))
         positions = view_positions[load_view_states([args.grid], poses="nearest")[args.index]] if has_runs else \
             np.zeros((0, 3))
-    if np.ndim(grid) != 3:
-        raise ShardError(f"{source}: a ranker plans from one grid (32, 32, 32); this holds {np.shape(grid)}")
+    ranker.check_scene(config, str(path))
+    try:
+        grids = check_grids(grid, config.scene_grid.size)
+    except GridError as error:
+        raise ShardError(f"{source}: {error}") from None
     if args.scanned is not None:
         try:
             positions = views.positions[parse_view_indices(args.scanned, len(views), "--scanned", "3,41,120")]
@@ -275,18 +280,21 @@ def _predict_ranker(args: argparse.Namespace, path: Path) -> int:
             raise ConfigError(f"{error} (the scene's candidate views)") from None
     if args.scanned_at is not None:
         positions = _positions(args.scanned_at)
-    ranker.check_scene(config, str(path))
-    scores = ranker.view_scores(np.asarray(grid, dtype=np.float32), positions, views, config)
     taken = scanned_views(positions, views.unit_positions)
-    scores = np.where(taken, -np.inf, scores)
-    order = [int(v) for v in np.argsort(-scores, kind="stable") if np.isfinite(scores[v])][:5]
-    view = order[0] if order else 0
-    x, y, z, yaw, pitch, roll = views[view].xyzypr.tolist()
-    answer = {"source": source, "ranker": str(path), "model": ranker.kind, "view": view,
-              "scanned": np.flatnonzero(taken).tolist(), "position": [x, y, z], "yaw": yaw, "pitch": pitch,
-              "roll": roll, "direction": views.unit_positions[view].tolist(),
-              "runner_ups": [{"view": v, "score": float(scores[v])} for v in order]}
-    print(json.dumps(answer, indent=2, allow_nan=False))
+
+    def answer(state: np.ndarray, where: str) -> dict:
+        scores = np.where(taken, -np.inf, ranker.view_scores(state, positions, views, config))
+        order = [int(v) for v in np.argsort(-scores, kind="stable") if np.isfinite(scores[v])][:5]
+        view = order[0] if order else 0
+        x, y, z, yaw, pitch, roll = views[view].xyzypr.tolist()
+        return {"source": where, "ranker": str(path), "model": ranker.kind, "view": view,
+                "scanned": np.flatnonzero(taken).tolist(), "position": [x, y, z], "yaw": yaw, "pitch": pitch,
+                "roll": roll, "direction": views.unit_positions[view].tolist(),
+                "runner_ups": [{"view": v, "score": float(scores[v])} for v in order]}
+
+    answers = [answer(state, source if np.ndim(grid) == 3 else f"{source}[{index}]")
+               for index, state in enumerate(grids)]
+    print(json.dumps(answers[0] if np.ndim(grid) == 3 else answers, indent=2, allow_nan=False))
     return 0
 
 
@@ -707,11 +715,12 @@ def _add_predict(sub, released: dict[str, str]) -> None:
                          "point network (nbvscore-pc) a cloud (.npy (M, 3), .ply, .pcd, .xyz: every scanned point, "
                          "object frame, metres) or a shard made with state.points")
     predict.add_argument("--index", type=non_negative_int, default=0, help="sample of the shard (default 0)")
-    predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt; default: the "
-                         f"released score network, {released['scores']})")
-    predict.add_argument("--scanned", help="score networks: candidate views already scanned, e.g. 3,41,120 (default: "
+    predict.add_argument("--checkpoint", type=Path, help="a checkpoint of nbvtrain fit (best.pt) or a ranker "
+                         f"(viewrank.json or .pt); default: the released ranker, {released['viewrank']} (every "
+                         "command's defaults: docs/released-models.md)")
+    predict.add_argument("--scanned", help="rankers and score networks: candidate views already scanned, e.g. 3,41,120 (default: "
                          "from the shard's run for a shard sample, none for a .npy grid)")
-    predict.add_argument("--scanned-at", metavar="'X,Y,Z;...'", help="nbvnet-4-3-scans: the sensor positions "
+    predict.add_argument("--scanned-at", metavar="'X,Y,Z;...'", help="rankers and nbvnet-4-3-scans: the sensor positions "
                          "scanned so far, object frame, e.g. '0.4,0,0;0,0,0.4', or 'none' (required for a .npy grid; "
                          "default for a shard sample: its run's scanned views)")
     predict.add_argument("--k", type=positive_float, default=1.0, help="scale of the position beyond the view sphere "

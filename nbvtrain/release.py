@@ -1,9 +1,10 @@
 """The released models: the checkpoints commands use when none is given, and how to make them.
 
 They ship inside the package (``nbvtrain/released/``, package data), so a plain ``pip install``
-has them: the candidate-score network (``scores``: the default of ``nbvtrain evaluate``,
-``predict`` and ``plan``) and the paper's regression network trained on the same data with the
-same budget (``regression``, for comparison). ``MODEL_CARD.md`` beside them says how they were
+has them: the ranker of candidate views (``viewrank``: the default of ``nbvtrain predict`` and
+``plan``), the candidate-score network (``scores``) and the paper's regression network trained on
+the same data with the same budget (``regression``, for comparison); docs/released-models.md says
+which model each command uses. ``MODEL_CARD.md`` beside them says how they were
 made and what they score; ``reference.json`` names each task's checkpoint file and holds its
 answer for ``reference_grid()``, which the tests reproduce from the installed files.
 

@@ -7,7 +7,7 @@ import pytest
 
 import nbvdata.cli
 import nbvtrain.cli
-from nbvtrain.release import released_checkpoint
+from nbvtrain.release import released_checkpoint, released_ranker
 
 
 def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -34,7 +34,8 @@ def test_every_option_of_every_command_has_help(cli):
 def test_the_checkpoint_defaults_named_are_the_ones_used():
     commands = {name: _options(parser) for name, parser in _commands(nbvtrain.cli.build_parser()).items()}
     scores, regression = released_checkpoint("scores").stem, released_checkpoint("regression").stem
-    for command, flag, model in (("predict", "--checkpoint", scores), ("plan", "--checkpoint", scores),
+    ranker = released_ranker().stem
+    for command, flag, model in (("predict", "--checkpoint", ranker), ("plan", "--checkpoint", ranker),
                                  ("evaluate", "--score-checkpoint", scores),
                                  ("evaluate", "--checkpoint", regression)):
         text = commands[command][flag].help

@@ -2,6 +2,7 @@
 refused and runs nothing), anything else than a checkpoint or a grid in the authors' encoding is
 a one-line error, and inference builds no deprecated torch.jit modules."""
 
+import json
 import os
 import subprocess
 import sys
@@ -450,3 +451,30 @@ def test_predict_says_what_a_file_that_is_no_grid_and_no_shard_is_not(tmp_path, 
     (tmp_path / "cut.h5").write_bytes((tmp_path / "cut.h5").read_bytes()[:100_000])
     assert main(["predict", str(tmp_path / "cut.h5"), "--checkpoint", str(checkpoint)]) == 2
     _one_line_error(capsys, f"{tmp_path / 'cut.h5'}: not a readable HDF5 file (truncated or corrupt?): delete it")
+
+
+@pytest.mark.parametrize("grid, message", [
+    (np.full((16, 16, 16), 0.5, dtype=np.float32), "grid has shape (16, 16, 16)"),
+    (np.where(np.arange(32 ** 3).reshape(32, 32, 32) == 7, np.nan, 0.5).astype(np.float32), "1 NaN values"),
+    (np.linspace(0, 3, 32 ** 3, dtype=np.float32).reshape(32, 32, 32), "outside [0, 1]"),
+])
+def test_the_ranker_checks_its_grids_as_a_network_does(tmp_path, capsys, grid, message):
+    """The released ranker is predict's default: the same one-line refusals as the score network's."""
+    np.save(tmp_path / "grid.npy", grid)
+    assert main(["predict", str(tmp_path / "grid.npy")]) == 2
+    _one_line_error(capsys, message)
+
+
+def test_the_ranker_answers_each_of_several_grids(tmp_path, capsys):
+    grids = np.full((3, 32, 32, 32), 0.5, dtype=np.float32)
+    grids[1, 20:, :, :] = 0.1192
+    grids[1, 19, 8:24, 8:24] = 0.971
+    np.save(tmp_path / "one.npy", grids[1])
+    assert main(["predict", str(tmp_path / "one.npy")]) == 0
+    one = json.loads(capsys.readouterr().out)
+    np.save(tmp_path / "grids.npy", grids)
+    assert main(["predict", str(tmp_path / "grids.npy"), "--scanned", "1,2"]) == 0
+    answers = json.loads(capsys.readouterr().out)
+    assert [answer["source"] for answer in answers] == [f"{tmp_path / 'grids.npy'}[{i}]" for i in range(3)]
+    assert all(answer["scanned"] == [1, 2] and answer["view"] not in (1, 2) for answer in answers)
+    assert one["model"] == "viewrank-gbm" and one["scanned"] == []

@@ -91,10 +91,10 @@ def test_commands_use_the_released_model_without_a_checkpoint(tmp_path, capsys):
     from nbvtrain.cli import main
 
     np.save(tmp_path / "grid.npy", reference_grid())
-    assert main(["predict", str(tmp_path / "grid.npy")]) == 0
+    assert main(["predict", str(tmp_path / "grid.npy")]) == 0  # the released ranker, as plan's default
     answer = json.loads(capsys.readouterr().out)
-    assert Path(answer["checkpoint"]).name == released_files()["scores"] and answer["scanned"] == []
-    assert answer["view"] == json.loads((FOLDER / REFERENCE).read_text())["scores"]["view"]
+    assert Path(answer["ranker"]).name == released_files()["viewrank"] and answer["scanned"] == []
+    assert answer["view"] == json.loads((FOLDER / REFERENCE).read_text())["viewrank"]["view"]
 
 
 def test_release_names_files_by_network_and_the_card_by_where_it_is_written(tmp_path, capsys):
