@@ -62,7 +62,7 @@ class Unit:
 
     @property
     def shard_name(self) -> str:
-        return f"{self.source.stem}-{self.source.mesh_id[:12]}-runs{self.runs[0]:04d}-{self.runs[1]:04d}.h5"
+        return f"{self.source.slug}-{self.source.mesh_id[:12]}-runs{self.runs[0]:04d}-{self.runs[1]:04d}.h5"
 
     @property
     def run_count(self) -> int:
@@ -176,7 +176,8 @@ def _run_claimed(unit: Unit, config: SimConfig, out_dir: Path, progress: Callabl
             attrs = {
                 "package_version": __version__,
                 "config": yaml.safe_dump(config.dataset_dict(), sort_keys=False),
-                "meshes": json.dumps([{"id": mesh_id, "source": obj.source, "sha256": mesh_id}], allow_nan=False),
+                "meshes": json.dumps([{"id": mesh_id, "source": unit.source.recorded, "sha256": mesh_id}],
+                                     allow_nan=False),
                 "samples": len(arrays["nbv_index"]),
                 "runs": np.array(unit.runs, dtype=np.int64),
                 "source": GENERATED,

@@ -142,7 +142,7 @@ def _license(source: str, has_mesh_ids: bool, licenses: dict[str, str]) -> str:
         return "as the imported dataset states (see its name)"
     if source.startswith("builtin:"):
         return BUILTIN_LICENSE
-    return licenses.get(source, NOT_RECORDED)
+    return licenses.get(source, licenses.get(Path(source).name, NOT_RECORDED))  # a path under --meshes: its file
 
 
 def mesh_licenses(mesh_dir: Path) -> dict[str, str]:

@@ -87,7 +87,9 @@ Point clouds (``CLOUDS``): a shard made with ``state.points`` > 0 holds ``points
 shards of before they existed (the ``config`` attribute leaves ``state`` out at its default).
 
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
-determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}), ``samples`` (N),
+determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}; the source is the file
+name, or its path under ``--meshes`` where another mesh of the job has the same stem:
+``nbvdata.sources.MeshSource.recorded``), ``samples`` (N),
 ``runs`` ([first, stop) run numbers of the unit), ``source`` ("nbvdata generate", or what was
 imported; absent in the first shards written, which mean "nbvdata generate"), ``policy`` (JSON
 {"sha256", "network"} of the checkpoint the runs followed; only with ``--policy``).

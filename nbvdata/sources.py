@@ -53,6 +53,19 @@ class MeshSource:
         """What evaluate's and benchmark's tables, plots and recordings call the mesh: ``label`` or the stem."""
         return self.label or self.stem
 
+    @property
+    def recorded(self) -> str:
+        """What shards, manifests and cards record as the mesh's source: its file name, or where
+        another mesh of the job has the same stem (ShapeNet's ``model_normalized.obj``), its path
+        under the folder given (``label``); ``builtin:NAME`` for a shape."""
+        return self.label or self.name
+
+    @property
+    def slug(self) -> str:
+        """The mesh in a shard's file name: the stem, or ``label`` without its suffix, '/' as '-'
+        (``02691156-1a2b-models-model_normalized``)."""
+        return str(Path(self.label).with_suffix("")).replace("/", "-") if self.label else self.stem
+
 
 def with_labels(sources: list[MeshSource], root: Path) -> list[MeshSource]:
     """``sources`` with ``label`` set on each file whose stem another one has too: its path under
@@ -101,8 +114,8 @@ def part_sources(manifest: str | Path, part: str, mesh_root: str | Path | None) 
     {"manifest": {name, version, sha256 of the manifest's bytes, path, part, meshes (count)}}."""
     published = load_manifest(manifest)
     meshes = find_part_meshes(published, part, mesh_root)
-    sources = with_labels([MeshSource(mesh.source, mesh.mesh_id, mesh.path) for mesh in meshes],
-                          Path(mesh_root or "."))
+    sources = with_labels([MeshSource(Path(mesh.source).name if mesh.path else mesh.source, mesh.mesh_id, mesh.path)
+                           for mesh in meshes], Path(mesh_root or "."))
     record = {key: published.identity[key] for key in ("name", "version", "sha256", "path")}
     return sources, {"manifest": record | {"part": part, "meshes": len(sources)}}
 
@@ -119,7 +132,8 @@ class PublishedMesh:
 
 def find_part_meshes(published: Published, part: str, mesh_root: str | Path | None) -> list[PublishedMesh]:
     """The meshes of ``part`` of the version's mesh split: every file is looked up in or below
-    ``mesh_root`` by the file name the manifest records and taken only when its sha256 is the
+    ``mesh_root`` by the source the manifest records (a file name, or a path its own path ends with)
+    and taken only when its sha256 is the
     recorded one (a mesh id is the sha256 of its file); a built-in shape must give its recorded
     id. ManifestError, in one line naming the meshes, when one is missing or differs."""
     records = published.part_meshes(part)
@@ -134,7 +148,7 @@ def find_part_meshes(published: Published, part: str, mesh_root: str | Path | No
         if not root.is_dir():
             raise ManifestError(f"--meshes {root}: no such folder; pass the folder the meshes of {where} lie in or "
                                 "below (e.g. ../shared/meshes)")
-        names = {record["source"] for record in files}
+        names = {Path(record["source"]).name for record in files}
         for path in sorted(root.rglob("*")):
             if path.name in names and path.is_file():
                 found[path.name].append(path)
@@ -147,7 +161,8 @@ def find_part_meshes(published: Published, part: str, mesh_root: str | Path | No
                 changed.append(f"{source} (this nbvdata's shape is another)")
             meshes.append(PublishedMesh(source, mesh_id, None))
             continue
-        candidates = found.get(source, [])
+        # a file name, or a path under the generation's folder (``MeshSource.recorded``): the files that end so
+        candidates = [path for path in found.get(Path(source).name, []) if path.as_posix().endswith(source)]
         match = next((path for path in candidates if sha256_file(path) == record["sha256"]), None)
         if match is None:
             (changed if candidates else missing).append(str(candidates[0]) if candidates else source)

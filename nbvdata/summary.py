@@ -153,6 +153,11 @@ def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, vie
             entry.final_coverage.append(float(coverage[rows[-1], 1]))
 
 
+def _fitted(text: str, width: int) -> str:
+    """``text`` in ``width`` characters: whole, or '...' and its end (a path's end tells meshes apart)."""
+    return text if len(text) <= width else "..." + text[-(width - 3):]
+
+
 def format_summary(summary: Summary, top: int = 10) -> str:
     """The summary as the text ``nbvdata inspect`` prints."""
     lines = [f"{plural(summary.shards, 'shard')}, {plural(summary.samples, 'sample')}, "
@@ -166,8 +171,9 @@ def format_summary(summary: Summary, top: int = 10) -> str:
     for key, entry in sorted(summary.meshes.items(), key=lambda item: (item[1].source, item[0])):
         mean = lambda values: f"{100 * np.mean(values):5.1f}%" if values else "    - "  # noqa: E731
         steps = f"{np.mean(entry.steps):9.1f}" if entry.steps else f"{'-':>9s}"
-        # one file name in many folders (ShapeNet's model_normalized.obj): the id too, as the shard names have it
-        name = entry.source[:44] if shared[entry.source] == 1 else f"{entry.source[:29]} ({key[:12]})"
+        # a path under --meshes (ShapeNet's CAT/ID/models/model_normalized.obj) keeps its end, which tells
+        # them apart; one source of several ids (shards of separate jobs): the id too, as the shard names have it
+        name = _fitted(entry.source, 44) if shared[entry.source] == 1 else f"{_fitted(entry.source, 29)} ({key[:12]})"
         lines.append(f"{name:44s} {entry.shards:6d} {entry.runs:5d} {entry.samples:7d} {steps} "
                      f"{mean(entry.first_coverage)} {mean(entry.final_coverage)}")
     if summary.samples:

@@ -220,7 +220,8 @@ def test_meshes_of_one_file_name_are_named_by_their_path(tmp_path):
     sources, _ = mesh_sources(shapenet_like(tmp_path))
     assert sorted(source.title for source in sources) == ["02/aa/models/model_normalized.obj",
                                                           "02/bb/models/model_normalized.obj", "pill"]
-    assert {source.name for source in sources} == {"model_normalized.obj", "pill.obj"}  # what shards record
+    assert {source.recorded for source in sources} == {"02/aa/models/model_normalized.obj",  # what shards record
+                                                       "02/bb/models/model_normalized.obj", "pill.obj"}
     listed = tmp_path / "list.txt"
     listed.write_text("02/aa/models/model_normalized.obj\npill.obj\n")
     assert [source.title for source in mesh_sources(listed)[0]] == ["model_normalized", "pill"]  # no collision

@@ -2,6 +2,7 @@
 bad meshes reported while the others go on."""
 
 import hashlib
+import json
 import os
 import re
 import selectors
@@ -21,7 +22,7 @@ from nbvdata.claims import claim, folder_lock, partial_path
 from nbvdata.cli import main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.generate import FAILURES_FILE, generate, plan_units
-from nbvdata.sources import builtin_sources, mesh_sources
+from nbvdata.sources import builtin_sources, mesh_sources, part_sources
 from nbvdata.shapes import builtin_object
 from nbvdata.shards import Shard, ShardError
 
@@ -259,21 +260,41 @@ def test_inspect_and_show_read_generated_shards(tmp_path, capsys):
     assert shard.name in printed.err and not printed.out  # no table of the other shards first
 
 
-def test_inspect_tells_meshes_of_one_file_name_apart(tmp_path, capsys):
-    """ShapeNet's CAT/ID/models/model_normalized.obj: one line per mesh, each with its id's first 12
-    hex digits, as in its shards' names."""
+def test_meshes_of_one_file_name_keep_their_path_in_shards_inspect_and_publish(tmp_path, capsys):
+    """ShapeNet's CAT/ID/models/model_normalized.obj: the path under --meshes is the source shards,
+    inspect, the manifest and the card record, and names the shards; a version's part finds them
+    again by it."""
     meshes = tmp_path / "meshes"
-    for extents, model in (((1, 2, 3), "02/aa/models"), ((3, 1, 1), "02/bb/models")):
+    models = ("02/aa/models", "02/bb/models", "03/cc/models")
+    for extents, model in zip(((1, 2, 3), (3, 1, 1), (1, 1, 2)), models):
         (meshes / model).mkdir(parents=True)
         trimesh.creation.box(extents=extents).export(meshes / model / "model_normalized.obj")
     out = tmp_path / "out"
     assert main(["generate", "--meshes", str(meshes), "--out", str(out), "--config", str(SMOKE), "--set",
                  "episode.runs_per_mesh=1", "--workers", "1", "--no-progress"]) == 0
+    sources = {f"{model}/model_normalized.obj" for model in models}
+    shards = sorted(out.glob("*.h5"))
+    assert sorted(path.name.rsplit("-", 3)[0] for path in shards) == sorted(
+        f"{model.replace('/', '-')}-model_normalized" for model in models)
+    recorded = set()
+    for path in shards:
+        with Shard(path) as shard:
+            recorded |= {mesh["source"] for mesh in shard.info.meshes}
+    assert recorded == sources
     capsys.readouterr()
     assert main(["inspect", str(out)]) == 0
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("model_normalized.obj")]
-    ids = sorted(path.name.split("-")[1] for path in out.glob("*.h5"))
-    assert len(lines) == 2 and sorted(line.split("(")[1].split(")")[0] for line in lines) == ids
+    text = capsys.readouterr().out
+    assert all(source in text for source in sources)
+    assert main(["publish", str(out), "--name", "shapenet-like", "--version", "1.0.0", "--manifests",
+                 str(tmp_path / "manifests"), "--meshes", str(meshes), "--val-fraction", "0.34",
+                 "--test-fraction", "0"]) == 0
+    warned = capsys.readouterr().err
+    assert "no license recorded for 3 meshes" in warned and all(source in warned for source in sources)
+    manifest = tmp_path / "manifests" / "shapenet-like-1.0.0.json"
+    assert {mesh["source"] for mesh in json.loads(manifest.read_text())["meshes"]} == sources
+    assert all(source in (tmp_path / "manifests" / "shapenet-like-1.0.0.md").read_text() for source in sources)
+    found, _ = part_sources(manifest, "train", tmp_path)  # a root above --meshes: found by the path's end
+    assert {source.title for source in found} <= {f"meshes/{source}" for source in sources} and found
 
 
 def test_mesh_lists_resolve_relative_to_the_list(tmp_path):
