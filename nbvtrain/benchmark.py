@@ -99,6 +99,16 @@ def protocol_names() -> list[str]:
     return sorted(path.stem for path in PROTOCOLS.glob("*.yaml"))
 
 
+def protocol_for(layout: str, count: int) -> str:
+    """``benchmark``'s way to run on the views (``layout``, ``count``): the protocol that plays them
+    (``--protocol scvp``), else a protocol file of one's own with those settings."""
+    for name in protocol_names():
+        settings = set(load_protocol(name).settings)
+        if {f"views.layout={layout}", f"views.count={count}"} <= settings:
+            return f"--protocol {name}"
+    return f"give --protocol a file of your own with settings [views.layout={layout}, views.count={count}]"
+
+
 def load_protocol(name: str | Path) -> Protocol:
     """``configs/protocols/NAME.yaml``, or a YAML file's path: ConfigError naming the known ones
     for another name, an unknown key (with a "did you mean") or a bad value."""

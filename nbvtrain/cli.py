@@ -430,14 +430,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from nbvdata.mesh import MeshError
     from nbvdata.views import view_sphere
     from nbvtrain.evaluate import evaluate, settings_dict, write_outputs
-    from nbvtrain.planners import PLANNERS, build_planners, default_planners
+    from nbvtrain.planners import build_planners
 
-    given = args.planners if args.planners is not None else ",".join(default_planners())
-    names = [name.strip() for name in given.split(",") if name.strip()]
-    unknown = [name for name in names if name not in PLANNERS and ":" not in name]
-    if unknown or not names:
-        raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy "
-                          "module:function")
+    names = _planner_names(args)
     config = load_config(SimConfig, args.config, args.overrides)
     if args.rerun is not None:
         try:
@@ -456,11 +451,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             sources, failures = mesh_sources(args.meshes)
         except MeshError as error:
             raise ConfigError(str(error)) from None
-    score_checkpoints = _checkpoint_list(args.score_checkpoint, "--score-checkpoint")
     weights = _numbers(args.hybrid_weight, "--hybrid-weight")
-    checkpoints = {"scores": score_checkpoints, "regression": args.checkpoint, "classification": args.class_checkpoint,
-                   "cover": args.cover_model, "scvp-net": args.scvp_checkpoint,
-                   "ranker": _checkpoint_list(args.ranker, "--ranker")}
+    checkpoints = _checkpoints(args)
     if args.spread is not None and args.no_stall:
         raise ConfigError("--spread never repeats a view already: drop --no-stall")
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints, args.no_stall, args.tta,
@@ -499,22 +491,17 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     from nbvdata.mesh import MeshError
     from nbvdata.sources import mesh_sources
     from nbvdata.views import view_sphere
-    from nbvtrain.benchmark import BENCH_MESHES, benchmark, load_protocol, protocol_config
+    from nbvtrain.benchmark import BENCH_MESHES, benchmark, load_protocol, protocol_config, protocol_for
     from nbvtrain.benchmark_report import write_benchmark
     from nbvtrain.evaluate import settings_dict
-    from nbvtrain.planners import (PLANNERS, CoverPlanner, TravelPlanner, build_planners, default_planners,
-                                   robot_radius)
+    from nbvtrain.planners import CoverPlanner, TravelPlanner, build_planners, robot_radius
 
     protocol = load_protocol(args.protocol)
     weights = _numbers(args.travel_weight, "--travel-weight") if args.travel_weight is not None else []
     if not all(math.isfinite(weight) and weight >= 0 for weight in weights):
         raise ConfigError(f"--travel-weight {args.travel_weight}: each weight must be a finite number >= 0")
     config = protocol_config(protocol, args.config, args.overrides)
-    given = args.planners if args.planners is not None else ",".join(default_planners())
-    names = [name.strip() for name in given.split(",") if name.strip()]
-    unknown = [name for name in names if name not in PLANNERS and ":" not in name]
-    if unknown or not names:
-        raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy module:function")
+    names = _planner_names(args)
     references = [name.strip() for name in args.reference.split(",") if name.strip()]
     missing = [name for name in references if name not in names]
     if missing or not references:
@@ -536,12 +523,9 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     if not sources:
         raise ConfigError(f"--meshes {meshes}: no mesh files in it")
     sources = sources[:args.limit] if args.limit else sources
-    checkpoints = {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"),
-                   "regression": args.checkpoint, "classification": args.class_checkpoint,
-                   "ranker": _checkpoint_list(args.ranker, "--ranker"), "cover": args.cover_model,
-                   "scvp-net": args.scvp_checkpoint}
+    checkpoints = _checkpoints(args)
     planners, skipped = build_planners(names, config, view_sphere(config.views), checkpoints,
-                                       foreign_views=protocol.snap)
+                                       foreign_views=protocol.snap, views_fix=protocol_for)
     for message in skipped:
         print(f"nbvtrain benchmark: {message}", file=sys.stderr)
     radius = robot_radius(config)
@@ -569,6 +553,26 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     for name, reason in report.failures:
         print(f"nbvtrain benchmark: failed: {name}: {reason}", file=sys.stderr)
     return 1 if report.failures else 0
+
+
+def _planner_names(args: argparse.Namespace) -> list[str]:
+    """evaluate's and benchmark's ``--planners``: the names given (default: the registry's default list),
+    each a registered planner or a policy module:function; ConfigError otherwise."""
+    from nbvtrain.planners import PLANNERS, default_planners
+
+    given = args.planners if args.planners is not None else ",".join(default_planners())
+    names = [name.strip() for name in given.split(",") if name.strip()]
+    if not names or any(name not in PLANNERS and ":" not in name for name in names):
+        raise ConfigError(f"--planners {given!r}: choose from {','.join(PLANNERS)}, or a policy module:function")
+    return names
+
+
+def _checkpoints(args: argparse.Namespace) -> dict:
+    """evaluate's and benchmark's model flags as ``build_planners`` takes them: task -> file(s), None
+    for the released one."""
+    return {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"), "regression": args.checkpoint,
+            "classification": args.class_checkpoint, "ranker": _checkpoint_list(args.ranker, "--ranker"),
+            "cover": args.cover_model, "scvp-net": args.scvp_checkpoint}
 
 
 def _checkpoint_list(text: str | None, flag: str) -> list[Path] | None:

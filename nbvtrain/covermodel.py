@@ -217,6 +217,20 @@ class CoverModel:
         """ConfigError when ``config``'s grid is not the one the model was trained on."""
         check_grid(self.scene, config, where, "a cover model")
 
+    def view_set_warning(self, config: SimConfig, where: str) -> str | None:
+        """A line when ``config``'s candidate views are none of the view sets the model was trained on
+        (``training["view_sets"]``, ``nbvtrain.rankdata.layout_label``): its sets there may be far
+        from the cover's size (trained on SCVP's 32 alone, it planned 164 of the paper's 500 views);
+        None when they are one of them, or the file records none (written before it did)."""
+        from nbvtrain.rankdata import layout_label
+
+        trained = self.training.get("view_sets")
+        here = layout_label(config)
+        if not trained or here in trained:
+            return None
+        return (f"{where}: a cover model trained on {', '.join(trained)} only, planning on {here}: its sets may be far "
+                "from a cover's size there; fit one on this view set too (docs/setcover.md)")
+
     def save(self, path: Path) -> None:
         from nbvtrain._lightgbm import TEXT_KEY, text_digest
 
@@ -278,7 +292,8 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
     best = booster.best_iteration or booster.current_iteration()
     booster = lightgbm.Booster(model_str=booster.model_to_string(num_iteration=best))
     model = CoverModel(booster, config.rays, _scene(train_parts[0].path), 0.5,
-                       asdict(config) | {"rounds": best, "sources": records})
+                       asdict(config) | {"rounds": best, "sources": records,
+                                         "view_sets": sorted(set(train.rows.layouts.tolist()))})
     probabilities = model.probabilities(val.rows.features)
     model.threshold, table = choose_threshold(probabilities, val)
     out.mkdir(parents=True, exist_ok=True)

@@ -392,7 +392,8 @@ none is released the released score network; ``nbvtrain.release``);
         try:
             return CoverPlanPlanner(SCVPNetPlanner(path, views, radius), config)
         except Skipped as reason:
-            raise PlanError(f"{reason}: pass --set views.layout=scvp-32 --set views.count=32") from None
+            settings = "pass --set views.layout={} --set views.count={}".format(*reason.views) if reason.views else ""
+            raise PlanError(reason.fix(settings)) from None
     if is_ranker_file(path):
         if tta:
             raise PlanError(f"--tta: {path} is a ranker of per-view features, which quarter turns leave unchanged "

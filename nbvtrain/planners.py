@@ -68,6 +68,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import importlib.util
+import logging
 import math
 import os
 import sys
@@ -792,20 +793,23 @@ class CoverModelPlanner(CoverPlanner):
     k most probable unscanned views, k their probabilities' sum rounded (the expected cover size)."""
 
     def __init__(self, model: str | Path, views: ViewSet, config: SimConfig, radius: float,
-                 travel_weight: float = 0.0, name: str = "cover"):
+                 travel_weight: float = 0.0, name: str = "cover", warn: bool = True):
         from nbvtrain.covermodel import load_cover_model
 
         super().__init__(views, radius, travel_weight)
         self.name, self.model, self.config = name, model, config
         self.cover = load_cover_model(model)
         self.cover.check_scene(config, str(model))
+        warning = self.cover.view_set_warning(config, str(model)) if warn else None
+        if warning:  # once, where the planner is built (not again in each worker)
+            logging.getLogger(__name__).warning("%s", warning)
 
     def __reduce__(self):
         """Pickled as its arguments: a worker process loads the model file itself."""
-        return type(self), (self.model, self.views, self.config, self.radius, self.travel_weight, self.name)
+        return type(self), (self.model, self.views, self.config, self.radius, self.travel_weight, self.name, False)
 
     def _copy(self) -> "CoverPlanner":
-        return type(self)(self.model, self.views, self.config, self.radius, self.travel_weight, self.name)
+        return type(self)(self.model, self.views, self.config, self.radius, self.travel_weight, self.name, False)
 
     def probabilities(self, observation: Observation) -> np.ndarray:
         return self.cover.view_probabilities(observation.probabilities, observation.positions, self.views, self.config)
@@ -833,9 +837,10 @@ class SCVPNetPlanner(CoverPlanner):
         self.net = load_covernet(checkpoint)
         trained = self.net.view_positions
         if trained.shape != views.positions.shape or not np.allclose(trained, views.positions, atol=1e-6):
-            raise Skipped(f"{checkpoint} predicts its {len(trained)} candidate views, this run has {len(views)} "
-                          "others (scvp-net plans one view set: run it under the layout it was trained on, e.g. "
-                          "--protocol scvp)")
+            layout = fixed_layout(trained)
+            raise Skipped(f"{checkpoint} predicts its {len(trained)} candidate views ({layout or 'a layout of its own'}), "
+                          f"this run has {len(views)} others (scvp-net plans one view set)",
+                          (layout, len(trained)) if layout else None)
 
     def __reduce__(self):
         return type(self), (self.checkpoint, self.views, self.radius, self.travel_weight, self.name)
@@ -885,7 +890,17 @@ def default_planners() -> list[str]:
 
 
 class Skipped(Exception):
-    """A planner that cannot be built here (no checkpoint for its task): the message says why."""
+    """A planner that cannot be built here: the message says why (no checkpoint for its task: and
+    what to pass). ``views``: where the planner plays one view set only, its (layout, count), from
+    which each command says its own fix (``fix``)."""
+
+    def __init__(self, message: str, views: tuple[str, int] | None = None):
+        super().__init__(message)
+        self.views = views
+
+    def fix(self, settings: str) -> str:
+        """The message, ending in ``settings`` (the command's way to run on ``views``) where there are views."""
+        return f"{self}: {settings}" if self.views is not None else str(self)
 
 
 @dataclass(frozen=True)
@@ -1023,6 +1038,17 @@ register_planner("hybrid", ("grid", "poses"), "the score network's scores plus a
                                    context.hybrid_stride) for weight in context.hybrid_weights])
 
 
+def fixed_layout(positions: np.ndarray) -> str | None:
+    """The name of the fixed layout (``nbvdata.views.FIXED_LAYOUTS``) whose directions ``positions``
+    (V, 3) are, at any radius; None for any other view set."""
+    units = positions / np.linalg.norm(positions, axis=1, keepdims=True)
+    for name, directions in FIXED_LAYOUTS.items():
+        known = directions()
+        if known.shape == units.shape and np.allclose(known, units, atol=1e-6):
+            return name
+    return None
+
+
 def planner_table() -> list[str]:
     """The docs' table of the registered planners (docs/evaluation.md holds it verbatim)."""
     lines = ["| planner | decides from | chooses | options |", "|---|---|---|---|"]
@@ -1038,10 +1064,14 @@ def planner_table() -> list[str]:
 def build_planners(names: list[str], config: SimConfig, views: ViewSet,
                    checkpoints: dict[str, Path | Sequence[Path] | None], no_stall: bool = False, tta: bool = False,
                    hybrid_weights: Sequence[float] = (1.0,), hybrid_stride: int = 4,
-                   spread: float | None = None, foreign_views: bool = False) -> tuple[list[Planner], list[str]]:
+                   spread: float | None = None, foreign_views: bool = False,
+                   views_fix: Callable[[str, int], str] = lambda layout, count: f"--set views.layout={layout} --set "
+                                                                                 f"views.count={count}",
+                   ) -> tuple[list[Planner], list[str]]:
     """The named planners (registered ones, and ``module:function`` policies), and a message for
-    each one skipped for want of a checkpoint. ConfigError for a name not registered, listing those
-    that are.
+    each one skipped for want of a checkpoint (or, for one that plays a single view set, naming the
+    calling command's way to run on it: ``views_fix(layout, count)``, by default the settings).
+    ConfigError for a name not registered, listing those that are.
 
     ``checkpoints``: task (scores, regression, classification) -> checkpoint file (scores: also
     several, an ensemble), None for the released model of that task (``nbvtrain.release``) where
@@ -1062,5 +1092,5 @@ def build_planners(names: list[str], config: SimConfig, views: ViewSet,
         try:
             planners += kind.build(context)
         except Skipped as reason:
-            skipped.append(f"{name}: skipped, {reason}")
+            skipped.append(f"{name}: skipped, {reason.fix(views_fix(*reason.views) if reason.views else '')}")
     return planners, skipped

@@ -370,10 +370,19 @@ def check_in_front(scan: SensorScan) -> None:
     (or a pose inverted, or of a frame whose x is forward) often put many behind."""
     behind = len(scan.points) - int(np.count_nonzero(_depths(scan.points, scan.matrix) > 0))
     if behind > BEHIND_TOLERANCE * len(scan.points):
+        front = in_front_share(scan.points, np.linalg.inv(scan.matrix))
+        if front >= 1 - BEHIND_TOLERANCE:  # the pose's inverse puts them in front: the likelier mistake
+            raise SensorDataError(
+                f"{scan.source}: {behind} of {len(scan.points)} points ({behind / len(scan.points):.0%}) lie behind the "
+                f"sensor of its pose, and {front:.0%} in front of its inverse's: the pose looks inverted "
+                f"(world-to-camera); tell by the depths (points - pose[:3, 3]) @ pose[:3, 2], which a "
+                f"camera-to-world pose makes positive: {INVERTED_FIX}")
         raise SensorDataError(
             f"{scan.source}: {behind} of {len(scan.points)} points ({behind / len(scan.points):.0%}) lie behind the "
-            "sensor of its pose: the cloud must hold world-frame points and the pose be camera-to-world with the optical axis "
-            "along the camera's +z (x right, y down); transform a camera-frame cloud by its pose first")
+            "sensor of its pose (and of its inverse's): the cloud must hold world-frame points and the pose be "
+            "camera-to-world with the optical axis along the camera's +z (x right, y down), so that the depths "
+            "(points - pose[:3, 3]) @ pose[:3, 2] are positive; transform a camera-frame cloud by its pose first, and "
+            "invert a world-to-camera pose")
 
 
 def pixel_ray_share(points: np.ndarray, matrix: np.ndarray) -> float:

@@ -16,7 +16,7 @@ from nbvdata.cli import main as nbvdata_main
 from nbvdata.config import SimConfig, load_config
 from nbvdata.paths import path_length, shortest_tour
 from nbvdata.views import ViewSet, view_sphere
-from nbvtrain.benchmark import run_metrics
+from nbvtrain.benchmark import protocol_for, run_metrics
 from nbvtrain.checkpoint import CheckpointError
 from nbvtrain.cli import main as nbvtrain_main
 from nbvtrain.covermodel import expected_sets, load_cover_model, predicted_sets, set_quality
@@ -186,7 +186,36 @@ def test_cover_planners_build_by_name_and_skip_without_a_model(models):
     assert [p.name for p in planners] == ["cover", "scvp-net"] and not skipped
     hemisphere = SimConfig()
     planners, skipped = build_planners(["scvp-net"], hemisphere, view_sphere(hemisphere.views), checkpoints)
-    assert not planners and "predicts its 32 candidate views, this run has 500" in skipped[0]
+    assert not planners and "predicts its 32 candidate views (scvp-32), this run has 500" in skipped[0]
+    assert skipped[0].endswith(": --set views.layout=scvp-32 --set views.count=32")  # evaluate's own fix
+    _, skipped = build_planners(["scvp-net"], hemisphere, view_sphere(hemisphere.views), checkpoints,
+                                views_fix=protocol_for)
+    assert skipped[0].endswith(": --protocol scvp") and "--set" not in skipped[0]  # benchmark's
+
+
+def test_a_cover_model_says_once_where_it_plans_on_a_view_set_it_never_saw(models, caplog, tmp_path):
+    """Fitted on SCVP's 32 views alone, planning on the paper's 500: one line, naming both."""
+    assert load_cover_model(models["cover"]).training["view_sets"] == ["scvp-32-32"]
+    hemisphere = SimConfig()
+    planners, _ = build_planners(["cover"], hemisphere, view_sphere(hemisphere.views), {"cover": models["cover"]})
+    warned = [record.getMessage() for record in caplog.records if "view set" in record.getMessage()]
+    assert len(warned) == 1 and "trained on scvp-32-32 only, planning on hemisphere-500" in warned[0]
+    caplog.clear()
+    import pickle
+
+    pickle.loads(pickle.dumps(planners[0]))  # a worker's copy says nothing again
+    config = load_config(SimConfig, None, ["views.layout=scvp-32", "views.count=32"])
+    build_planners(["cover"], config, view_sphere(config.views), {"cover": models["cover"]})
+    assert not [record for record in caplog.records if "view set" in record.getMessage()]
+
+
+def test_plan_names_its_own_fix_for_scvp_net_on_other_views(models):
+    from nbvtrain.plan import PlanError, load_planner
+
+    with pytest.raises(PlanError) as caught:
+        load_planner(models["scvp-net"], config=SimConfig())
+    assert str(caught.value).endswith("pass --set views.layout=scvp-32 --set views.count=32")
+    assert "--protocol" not in str(caught.value)
 
 
 def test_the_path_to_each_target_is_the_path_at_the_scan_that_reaches_it():

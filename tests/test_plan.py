@@ -328,7 +328,8 @@ def _bad_case(case: str, tmp_path: Path, scene) -> tuple[list[str], list[str]]:
         return scan_args, ["scan 1", "looks like camera-frame points", "world-frame points"]
     if case == "inverted pose":
         return with_entry(lambda e: e.update(pose=np.linalg.inv(np.array(e["pose"])).tolist())), [
-            "scan 1", "lie behind the sensor of its pose", "camera-to-world"]
+            "scan 1", "lie behind the sensor of its pose", "the pose looks inverted (world-to-camera)",
+            "in front of its inverse's", "tell by the depths"]
     if case == "pose with scale":
         return with_entry(lambda e: e.update(pose=(np.diag([2, 2, 2, 1]) @ np.array(e["pose"])).tolist())), [
             "scan 1: pose is not a rigid transform", "without scale"]
