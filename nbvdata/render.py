@@ -13,11 +13,14 @@ so that the cut shows them, and the legend says so. The scanned views' arrows ar
 scan order. What lies behind the grid's centre, as seen from the picture's viewpoint (views,
 their arrows and numbers), is drawn before the voxels and what lies in front after them, so the
 voxels hide a view behind the object and never one in front: exact for views outside the grid's
-circumscribed sphere (all of them, drawn nearer as they are). The PNG is cropped to what is drawn.
+circumscribed sphere (all of them, drawn nearer as they are). The next view's red arrow is drawn
+over everything, wherever it lies (the legend says when it lies behind the object). A long title
+is wrapped to the figure's width. The PNG is cropped to what is drawn.
 """
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Sequence
 
@@ -43,6 +46,7 @@ MARGIN_PX = 8  # blank pixels kept around the drawing, the title and the legend
 VIEW = {"elev": 30, "azim": -60}  # the 3D axes' viewpoint (matplotlib's default): from +x, -y and above
 CUT_AWAY = "front quarter cut away to show the inside"
 BEHIND, VOXELS, IN_FRONT, ON_TOP = 1, 2, 3, 4  # the draw order (zorder): behind the grid's centre, the voxels, ...
+TITLE_CHARACTERS = 90  # a title's line at most: what the 7-inch figure holds at 10 points
 HALO = [patheffects.withStroke(linewidth=3, foreground="white")]  # the scan numbers readable over the voxels
 
 
@@ -192,7 +196,8 @@ def draw_state(
         for index, color in arrows:
             start = positions[index]
             arrow = (to_grid(np.zeros(3)) - start) * 0.35
-            ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3, zorder=layer[index])
+            ax.quiver(*start, *arrow, color=color, linewidth=2.5, arrow_length_ratio=0.3,
+                      zorder=ON_TOP if color == NEXT else layer[index])  # the next view is never hidden
         for number, index in enumerate(scanned, start=1):  # scan order, just beyond the arrow's tail
             ax.text(*(positions[index] + 0.08 * (positions[index] - n / 2)), str(number), color=SCANNED,
                     fontsize=9, fontweight="bold", ha="center", va="center", zorder=layer[index],
@@ -200,6 +205,7 @@ def draw_state(
         if highlight is not None:
             which = [f"view {highlight}"] if highlight < candidates else []
             which += [f"scan {list(scanned).index(highlight) + 1}"] if highlight in scanned else []
+            which += ["behind the object"] if layer[highlight] == BEHIND else []
             legend.append(Line2D([], [], color=NEXT, linewidth=2.5,
                                  label=labels[0] + (f" ({', '.join(which)})" if which else "")))
         if len(others):
@@ -224,8 +230,8 @@ def draw_state(
     ax.set_box_aspect((high - low, high - low, high - bottom), zoom=1.3 if views is not None else 1.0)
     ax.set_axis_off()
     fig.legend(handles=legend, loc="lower center", ncol=3 if len(legend) <= 6 else 2, fontsize=8, frameon=False)
-    if title:
-        fig.text(0.5, 0.99, title, ha="center", va="top", fontsize=10)
+    if title:  # wrapped to the figure's width: a long one (a mesh's path) would run off both edges
+        fig.text(0.5, 0.99, textwrap.fill(title, TITLE_CHARACTERS, break_on_hyphens=False), ha="center", va="top", fontsize=10)
     return fig
 
 

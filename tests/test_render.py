@@ -58,7 +58,7 @@ def test_the_legend_names_every_colour_and_arrow():
     texts = _legend(fig)
     plt.close(fig)
     assert texts == ["occupied (64 voxels)", "unknown (152)", "free (3880, not drawn)", "candidate views (40)",
-                     "next-best-view (view 3)", "runner-up candidates",
+                     "next-best-view (view 3, behind the object)", "runner-up candidates",
                      "views drawn at 90% of their distance (directions exact)"]
     fig = draw_state(_grid(), 0.3, views)
     texts = [text.get_text() for legend in fig.legends for text in legend.get_texts()]
@@ -97,7 +97,7 @@ def test_one_colour_one_meaning_in_every_picture():
     rgb = lambda colour: tuple(np.round(to_rgb(colour), 3))  # noqa: E731
     assert colours.count(rgb(SCANNED)) == 3 and colours.count(rgb(RUNNER_UP)) == 2 and colours.count(rgb(NEXT)) == 1
     assert colours.count(rgb(AXES_COLOUR)) == 3 and labels == ["1", "2", "3", "x", "y", "z"]
-    assert "scanned views (3, numbered in scan order)" in texts and "runner-up candidates" in texts and "next-best-view (view 3)" in texts
+    assert "scanned views (3, numbered in scan order)" in texts and "runner-up candidates" in texts and "next-best-view (view 3, behind the object)" in texts
 
 
 def test_the_views_are_drawn_nearer_so_the_object_fills_the_picture():
@@ -221,6 +221,46 @@ def test_the_object_hides_a_view_behind_it_and_none_in_front(side, angle, tmp_pa
         assert green["solid"] >= 0.95 * green["empty"], green
 
 
+def _red_pixels(path) -> int:
+    """Pixels of the next view's red arrow above the legend (as ``_green_pixels``)."""
+    pixels = imread(path)[..., :3]
+    drawing = pixels[:int(0.85 * len(pixels))]
+    return int((np.abs(drawing - np.array([1.0, 0.0, 0.0])) < 0.12).all(axis=2).sum())
+
+
+def test_the_next_view_is_drawn_over_the_object_even_behind_it(tmp_path):
+    """Issue 66: plan --png hid the chosen view's red arrow behind the object. A solid block, the
+    view straight behind it: its red shows as over an empty grid, and the legend says where it is."""
+    from nbvdata.render import VIEW
+    from nbvdata.views import ViewSet, look_at_rotations
+
+    elev, azim = np.radians(VIEW["elev"]), np.radians(VIEW["azim"])
+    eye = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+    across = np.cross(eye, [0.0, 0.0, 1.0])
+    direction = -np.cos(np.radians(20)) * eye + np.sin(np.radians(20)) * across / np.linalg.norm(across)
+    views = ViewSet(0.4 * direction[None], look_at_rotations(0.4 * direction[None]))
+    red = {}
+    for name, value in (("solid", 0.7), ("empty", 0.4)):
+        grid = np.full((16, 16, 16), value, dtype=np.float32)
+        red[name] = _red_pixels(render_state(grid, 0.3, tmp_path / f"{name}.png", views, highlight=0))
+    assert red["empty"] > 100 and red["solid"] >= 0.95 * red["empty"], red
+    fig = draw_state(np.full((16, 16, 16), 0.7, dtype=np.float32), 0.3, views, highlight=0)
+    texts = _legend(fig)
+    plt.close(fig)
+    assert "next-best-view (view 0, behind the object)" in texts
+
+
+def test_a_long_title_stays_inside_the_picture():
+    """Issue 66: nbvdata show clipped a long title (a mesh's path) at both edges: it is wrapped."""
+    title = "shard " + "/".join(["a-rather-long-folder-name"] * 8) + "/model.h5, sample 12: 4 scans, NBV view 311"
+    fig = draw_state(_grid(), 0.3, view_sphere(ViewConfig(count=40)), title=title)
+    fig.canvas.draw()
+    (text,) = fig.texts
+    box, width = text.get_window_extent(), fig.bbox.width
+    plt.close(fig)
+    assert box.x0 >= 0 and box.x1 <= width and "".join(text.get_text().split()) == "".join(title.split())
+
+
 def test_the_scanned_views_are_numbered_in_scan_order():
     """Issue 58: the picture did not say which scan came first. Each scanned view's arrow carries
     its place in the scan order, just beyond its tail; the legend says so, and a highlighted view
@@ -239,4 +279,4 @@ def test_the_scanned_views_are_numbered_in_scan_order():
         beyond = numbers[str(number)] - 8
         assert np.allclose(beyond / np.linalg.norm(beyond), (drawn - 8) / np.linalg.norm(drawn - 8))
         assert np.linalg.norm(beyond) == pytest.approx(1.08 * np.linalg.norm(drawn - 8))
-    assert "scanned views (3, numbered in scan order)" in texts and "next-best-view (view 30, scan 3)" in texts
+    assert "scanned views (3, numbered in scan order)" in texts and "next-best-view (view 30, scan 3, behind the object)" in texts
