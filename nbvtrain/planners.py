@@ -712,11 +712,13 @@ class RankerPlanner(Planner):
 class CoverPlanner(Planner):
     """A learned one-shot plan (SCVP's idea): from the current state, a model predicts the set of
     candidate views that will cover what is left - every unscanned view whose probability of being
-    in the state's exact cover reaches the model's threshold (the most probable one when none does)
-    - (``chosen``; ``cover`` takes its expected number of most probable views instead) - and the
-    planner visits it in the shortest tour's order from where the sensor is
-    (``nbvdata.paths.shortest_tour``, round the bounding sphere a robot knows, ``radius``). With the
-    set done it predicts again from the state it has reached (re-activation) until the budget.
+    in the state's exact cover reaches the model's threshold (``chosen``; ``cover`` takes its
+    expected number of most probable views instead) - and the planner visits it in the shortest
+    tour's order from where the sensor is (``nbvdata.paths.shortest_tour``, round the bounding
+    sphere a robot knows, ``radius``). With the set done it predicts again from the state it has
+    reached (re-activation) until the budget. A prediction in which no view reaches the threshold
+    says the cover is done: the plan is then every unscanned view, the most probable first, and
+    the model is not asked again (before, it was asked at every decision for one view).
 
     ``travel_weight`` L > 0 trades views for path: the planned set drops, one at a time, the view
     whose detour in the tour (d(prev, v) + d(v, next) - d(prev, next), in view-sphere radii) times L
@@ -736,21 +738,25 @@ class CoverPlanner(Planner):
         self.plan = []
 
     def planned_set(self, observation: Observation) -> list[int]:
-        """The views to visit next, in tour order, predicted from ``observation`` (class docstring)."""
+        """The views to visit next, in tour order, predicted from ``observation`` (class docstring);
+        where no view reaches the threshold (the model's cover is done), every unscanned view, the most
+        probable first: one prediction serves the rest of the run instead of one per decision."""
         taken = scanned_views(observation.positions, self.views.unit_positions)
         probabilities = np.where(taken, -np.inf, self.probabilities(observation))
         chosen = self.chosen(probabilities)
+        if chosen is None:
+            free = np.flatnonzero(np.isfinite(probabilities))
+            return [int(v) for v in free[np.argsort(-probabilities[free], kind="stable")]] or [0]
         here = observation.positions[-1] if len(observation.positions) else self.views.positions[chosen[0]]
         order = [chosen[i] for i in shortest_tour(here, self.views.positions[chosen], self.radius)]
         if self.travel_weight > 0:
             order = self._pruned(here, order, probabilities)
         return order
 
-    def chosen(self, probabilities: np.ndarray) -> list[int]:
+    def chosen(self, probabilities: np.ndarray) -> list[int] | None:
         """The planned views (unordered) of (V,) probabilities, -inf for scanned views: those that
-        reach the threshold, the most probable one when none does."""
-        chosen = [int(v) for v in np.flatnonzero(probabilities >= self.threshold)]
-        return chosen or [int(np.argmax(probabilities))]
+        reach the threshold; None when none does (``planned_set``)."""
+        return [int(v) for v in np.flatnonzero(probabilities >= self.threshold)] or None
 
     def _pruned(self, here: np.ndarray, order: list[int], probabilities: np.ndarray) -> list[int]:
         scale = float(np.linalg.norm(self.views.positions[0]))

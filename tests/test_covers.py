@@ -163,6 +163,21 @@ def test_the_cover_planner_tours_its_set_then_plans_again():
     assert view not in scanned  # every member scanned: the most probable unscanned view, never a repeat
 
 
+def test_a_prediction_with_nothing_left_serves_the_rest_of_the_run():
+    """Issue 66: once no view reached the threshold the model was asked again at every decision for
+    one view (scvp-net: 488 ms a decision under load); now that one prediction's ranking is the plan."""
+    views = view_sphere(load_config(SimConfig, None, ["views.layout=scvp-32", "views.count=32"]).views)
+    probabilities = np.linspace(0.4, 0.01, 32)  # none reaches 0.5: the model's cover is done
+    planner = FixedCover(views, probabilities)
+    planner.start(0)
+    scanned = [5]
+    for _ in range(10):
+        pose = planner.next_pose(_observation(views, scanned))
+        scanned.append(int(np.flatnonzero((views.positions == pose.position).all(axis=1))[0]))
+    assert planner.calls == 1
+    assert scanned[1:] == [v for v in range(32) if v != 5][:10]  # the most probable first, never a repeat
+
+
 def test_a_travel_weight_drops_far_views_of_low_margin_and_never_empties_the_set():
     views = view_sphere(load_config(SimConfig, None, ["views.layout=scvp-32", "views.count=32"]).views)
     here = views.positions[0]
