@@ -26,9 +26,10 @@ of them, ``--val-starts`` seeded starts each, the same for every stage): the mea
 coverage curve over 10 scans (PC-NBV's, as ``nbvtrain benchmark``) and the final coverage. The
 stage with the best validation AUC is copied to ``actor.pt`` (a row ``viewrank (reference)``:
 the ranker of per-view features, ``--ranker``, scored the same way - the bar; never a stage), the PPO run with the best to
-``ppo.pt``. ``--minutes`` bounds this process's CPU time (one torch and one ray-casting thread;
-the same budget on an idle and a loaded machine): cloning may take 10 % of it, DAgger up to 35 %
-in all, the PPO runs share what is left equally. ``--scratch-minutes M`` adds, after the choice,
+``ppo.pt``. ``--minutes`` bounds this process's CPU time from its start, imports included (one
+torch and one ray-casting thread; the same budget on an idle and a loaded machine): the
+validations still to come are kept in hand (each as long as the longest so far), cloning may take
+10 % of the rest, DAgger up to 35 % in all, the PPO runs share what is left equally. ``--scratch-minutes M`` adds, after the choice,
 masked PPO from new weights with the best PPO run's discount for M more CPU minutes
 (``scratch.pt``), the baseline the warm start has to beat. ``curve.csv``: the validation figures
 against CPU minutes (``steps``: PPO's environment steps, or the states cloned).
@@ -80,14 +81,19 @@ CLONE = "python examples/rl_sb3.py --manifest manifests/builtin-shapes-1.3.0.jso
 """The recipe on what a clone has: the built-in shapes (4 to learn on, 1 to choose on), 3 CPU minutes."""
 
 
+EXIT_MINUTES = 0.05
+"""CPU minutes kept for the end: saving the chosen actor and the interpreter's exit (about 2 s seen)."""
+
+
 class Budget:
-    """This process's CPU seconds, against a deadline in CPU minutes."""
+    """This process's CPU minutes since it started (its imports included: what ``time`` reports),
+    against deadlines; ``validation``: what one validation took, kept in hand for those still to come."""
 
     def __init__(self):
-        self.began = time.process_time()
+        self.validation = 0.0
 
     def minutes(self) -> float:
-        return (time.process_time() - self.began) / 60
+        return time.process_time() / 60
 
     def left(self, until: float) -> bool:
         return self.minutes() < until
@@ -95,18 +101,36 @@ class Budget:
 
 class StopAt(BaseCallback):
     """Stops MaskablePPO once ``budget`` reaches ``until`` CPU minutes; every ``every`` CPU
-    minutes ``report()`` is called (a validation point of the curve)."""
+    minutes ``report()`` is called (a validation point of the curve), where one fits before the stop.
+
+    A rollout stopped part-way is dropped, but a full one is followed by PPO's update, which no
+    callback can stop: the last step of a rollout stops unless an update (as long as the longest
+    so far; before the first, twice the rollout's own collection) fits before ``until``."""
 
     def __init__(self, budget: Budget, until: float, every: float, report):
         super().__init__()
         self.budget, self.until, self.every, self.report = budget, until, every, report
         self.next = budget.minutes() + every
+        self.update, self.rollout_began, self.update_began = 0.0, budget.minutes(), None
+
+    def _on_rollout_start(self) -> None:
+        now = self.budget.minutes()
+        if self.update_began is not None:
+            self.update = max(self.update, now - self.update_began)
+        self.rollout_began = now
+
+    def _on_rollout_end(self) -> None:
+        self.update_began = self.budget.minutes()
 
     def _on_step(self) -> bool:
-        if self.budget.minutes() >= self.next:
+        now = self.budget.minutes()
+        if now >= self.next and now + self.budget.validation < self.until:  # a report that fits before the stop
             self.report(self.num_timesteps)
-            self.next = self.budget.minutes() + self.every
-        return self.budget.left(self.until)
+            self.next = now = self.budget.minutes()
+            self.next += self.every
+        if self.model.rollout_buffer.pos + 1 >= self.model.rollout_buffer.buffer_size:  # an update comes next
+            return now + (self.update or 2 * (now - self.rollout_began)) < self.until
+        return now < self.until
 
 
 def part_meshes(manifest: Path, meshes: Path, part: str, count: int) -> list[Path | str]:
@@ -206,7 +230,9 @@ def main() -> None:
     rows = []
 
     def record(stage: str, steps: int, logits=None, choose=None) -> tuple[float, float]:
+        began = budget.minutes()
         figures = validate(val, choose or rl.greedy(logits), len(val_paths), args.val_starts)
+        budget.validation = max(budget.validation, budget.minutes() - began)
         rows.append({"stage": stage, "cpu_minutes": round(budget.minutes(), 2), "steps": steps,
                      "val_auc": round(100 * figures[0], 2), "val_coverage": round(100 * figures[1], 2)})
         print(" | ".join(f"{k} {v}" for k, v in rows[-1].items()), flush=True)
@@ -240,12 +266,20 @@ def main() -> None:
         if round_ == args.dagger_rounds and round_:
             shutil.copyfile(args.out / f"{stage}.pt", args.out / "dagger.pt")
 
-    deadlines = [0.10 * args.minutes] + [0.10 * args.minutes + 0.25 * args.minutes * r / args.dagger_rounds
-                                         for r in range(1, args.dagger_rounds + 1)]
+    # What is left once the validations still to come are kept in hand: one after each DAgger round, one
+    # after each PPO run (a report inside a run fits before its stop, StopAt)
+    learning = args.minutes - EXIT_MINUTES - budget.minutes() - budget.validation * (args.dagger_rounds + 1 + len(gammas))
+    if learning <= 0:
+        print(f"examples/rl_sb3.py: the budget of {args.minutes:g} CPU minutes is spent on imports, meshes and "
+              f"validations ({budget.minutes():.2f} so far, {budget.validation:.2f} a validation): stages stop at once; "
+              "give more --minutes", flush=True)
+    start = budget.minutes()
+    deadlines = [start + 0.10 * learning] + [start + 0.10 * learning + 0.25 * learning * r / args.dagger_rounds
+                                             for r in range(1, args.dagger_rounds + 1)]
     rl.dagger(train, logits, parameters, args.dagger_rounds, args.episodes, args.epochs, args.seed, lr=1e-4,
               after_round=after_round, stop=lambda round_: not budget.left(deadlines[round_]))
     warm = {k: v.clone() for k, v in policy.state_dict().items()}
-    share = (args.minutes - budget.minutes()) / len(gammas)
+    share = max(0.0, (args.minutes - EXIT_MINUTES - budget.minutes() - budget.validation * len(gammas)) / len(gammas))
     for gamma in gammas:
         stage = f"ppo-g{gamma:g}"
         model = new_model(train, views, None, gamma, args.lr, args.seed)
