@@ -215,6 +215,10 @@ class StateConfig:
     """Points of each state's partial cloud (``nbvdata.cloud``): every point scanned so far,
     reduced to this many by farthest-point sampling (fewer are repeated), stored as the shards'
     ``points``, ``points_count`` and ``reference_points``. 0 = no clouds (the shards of before)."""
+    surface: bool = False
+    """Store the mesh's surface voxels in the scene grid once per shard (``surface``: the ground
+    truth of where the surface is, for a model of the surface hidden in a partial grid). False =
+    none (the shards of before)."""
 
     def __post_init__(self) -> None:
         require(self.points >= 0, f"state.points={self.points}: must be an integer >= 0 (0 = no point clouds; "

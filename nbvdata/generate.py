@@ -277,7 +277,9 @@ def _assemble(columns: dict[str, list], scene: Scene, palette: GridPalette, mesh
         "points": np.asarray(columns["points"], dtype=np.float32).reshape(count, scene.config.state.points, 3),
         "points_count": np.asarray(columns["points_count"], dtype=np.int32),
         "reference_points": scene.coverage.points.astype(np.float32),
-    } if scene.config.state.points else {})
+    } if scene.config.state.points else {}) | ({
+        "surface": scene.surface_voxels(),
+    } if scene.config.state.surface else {})
 
 
 # ---------------------------------------------------------------------------------------------

@@ -70,6 +70,25 @@ class Scene:
             self._empty_cover = solve_cover(self.oracle, nothing, self.config.oracle.cover_node_limit)
         return self._empty_cover
 
+    def surface_voxels(self) -> np.ndarray:
+        """(n, n, n) bool: the voxels of the scene grid (``config.scene_grid``, indexed as the
+        occupancy grid) that the mesh's surface passes through - where a scan could mark a voxel
+        occupied. The mesh is subdivided until every edge is under a quarter voxel (midpoints only:
+        the same bytes on every CPU) and every vertex marks its voxel, so a triangle marks each
+        voxel it crosses by more than a sliver."""
+        import trimesh
+
+        grid = self.config.scene_grid
+        n, resolution = grid.size, grid.resolution
+        vertices = np.asarray(self.object.mesh.vertices, dtype=np.float64)
+        faces = np.asarray(self.object.mesh.faces, dtype=np.int64)
+        vertices, _ = trimesh.remesh.subdivide_to_size(vertices, faces, max_edge=resolution / 4, max_iter=40)
+        keys = np.floor(vertices / resolution).astype(np.int64) + n // 2
+        keys = keys[((keys >= 0) & (keys < n)).all(axis=1)]
+        surface = np.zeros((n, n, n), dtype=bool)
+        surface[keys[:, 0], keys[:, 1], keys[:, 2]] = True
+        return surface
+
     def new_grid(self) -> OccupancyGrid:
         return OccupancyGrid(self.config.scene_grid)
 

@@ -60,6 +60,10 @@ Datasets::
     reference_points (R, 3) float32      the mesh's coverage reference points (coverage.points of them,
                                          on the surface): PC-NBV's ground-truth cloud; only with
                                          state.points > 0
+    surface        (n, n, n) bool        the voxels of the scene grid the mesh's surface passes through
+                                         (``nbvdata.scene.Scene.surface_voxels``), indexed as ``grids``:
+                                         where a scan could mark a voxel occupied; once per shard, only
+                                         with state.surface
 
 Optional datasets (``OPTIONAL``): ``gains``, ``overlaps``, ``coverage``, ``mesh_id``,
 ``last_view``, ``seed`` and ``view_poses`` may be absent: a shard imported from a dataset that
@@ -85,6 +89,8 @@ given and the overlap rule is no part of the cover, as in SCVP.
 Point clouds (``CLOUDS``): a shard made with ``state.points`` > 0 holds ``points``,
 ``points_count`` and ``reference_points``; with the default 0 none of them, byte for byte the
 shards of before they existed (the ``config`` attribute leaves ``state`` out at its default).
+
+The surface (``SURFACE``): a shard made with ``state.surface`` holds ``surface``; others do not.
 
 Attributes: ``schema_version`` (int), ``package_version``, ``config`` (YAML of the settings that
 determine the data), ``meshes`` (JSON list of {"id", "source", "sha256"}; the source is the file
@@ -144,13 +150,14 @@ PER_SAMPLE = {  # name: (dtype, trailing shape given V and n)
     "points": (np.float32, lambda v, n, p=1: (p, 3)),
     "points_count": (np.int32, lambda v, n: ()),
 }
-PER_SHARD = ("grid_palette", "view_positions", "view_poses", "reference_points")
+PER_SHARD = ("grid_palette", "view_positions", "view_poses", "reference_points", "surface")
 GENERATED = "nbvdata generate"  # the ``source`` attribute of generated shards: nothing optional
 OPTIONAL = frozenset({"gains", "overlaps", "coverage", "mesh_id", "last_view", "seed", "view_poses"})
 MOVES = frozenset({"move", "next_view", "next_pose"})  # only in runs off the oracle's path
 MOVE_RULES = ("oracle", "explore", "policy")  # what the ``move`` codes 0, 1, 2 mean
 COVER = frozenset({"cover", "cover_size", "cover_bound", "cover_greedy"})  # only with oracle.cover
 CLOUDS = frozenset({"points", "points_count", "reference_points"})  # only with state.points > 0
+SURFACE = frozenset({"surface"})  # only with state.surface
 ATTRIBUTES_DIGEST = "attributes_sha256"  # the attribute that checks the others (module docstring)
 
 # What the values of a dataset must be (module docstring): "probability" and "fraction" in [0, 1],
@@ -271,12 +278,12 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
     """Write a complete shard atomically: to ``partial`` (default ``path + .partial``), then
     rename over ``path``.
 
-    ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES``, ``COVER`` and ``CLOUDS``
-    ones may be left out); ``attrs`` every attribute but the version and the attributes' digest.
+    ``arrays`` holds every dataset of the schema (the ``OPTIONAL``, ``MOVES``, ``COVER``, ``CLOUDS`` and
+    ``SURFACE`` ones may be left out); ``attrs`` every attribute but the version and the attributes' digest.
     Every chunk gets a Fletcher-32 checksum (module docstring).
     """
     path = Path(path)
-    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER - CLOUDS)
+    missing = sorted((set(PER_SAMPLE) | set(PER_SHARD)) - set(arrays) - OPTIONAL - MOVES - COVER - CLOUDS - SURFACE)
     if missing:
         raise ValueError(f"write_shard: missing arrays {missing}")
     count = len(arrays["nbv_index"])
@@ -290,8 +297,9 @@ def write_shard(path: Path, arrays: dict[str, np.ndarray], attrs: dict, partial:
             for name in PER_SHARD:
                 if name in arrays:
                     data = np.asarray(arrays[name])
+                    packed = {"compression": "gzip", "compression_opts": 4} if name in SURFACE else {}
                     _written(f.create_dataset(name, data=data, chunks=data.shape if data.size else None,
-                                              fletcher32=bool(data.size), track_times=False))
+                                              fletcher32=bool(data.size), track_times=False, **packed))
             for name in PER_SAMPLE:
                 if name not in arrays:
                     continue
@@ -382,6 +390,8 @@ class Shard:
             optional |= COVER
         if not cloud_points(config):
             optional |= CLOUDS
+        if not has_surface(config):
+            optional |= SURFACE
         missing = [name for name in (*PER_SAMPLE, *PER_SHARD) if name not in self.file and name not in optional]
         if missing:
             raise ShardError(f"{self.path}: incomplete shard, missing {', '.join(missing)}: "
@@ -482,6 +492,12 @@ def has_covers(config: dict) -> bool:
     """Whether a shard's settings (its ``config``) asked for set-cover labels: then it holds ``COVER``."""
     oracle = config.get("oracle", {}) if isinstance(config, dict) else {}
     return bool(oracle.get("cover", False))
+
+
+def has_surface(config: dict) -> bool:
+    """Whether a shard's settings (its ``config``) asked for the mesh's surface voxels: then it holds ``SURFACE``."""
+    state = config.get("state", {}) if isinstance(config, dict) else {}
+    return bool(state.get("surface", False)) if isinstance(state, dict) else False
 
 
 def cloud_points(config: dict) -> int:

@@ -568,11 +568,11 @@ def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
     card = publish(shards, "explored", "1.0.0", tmp_path / "manifests").path.with_suffix(".md").read_text()
     assert "- Exploration: at each move, with probability 0.5 the run moved to a uniformly random view" in card
     assert "moves: " in card and "explore " in card
-    for dataset in MOVES:  # present (only the point clouds' rows are marked absent)
+    for dataset in MOVES:  # present (only the point clouds' and the surface's rows are marked absent)
         (row,) = [line for line in card.splitlines() if line.startswith(f"| `{dataset}` | (N")]
         assert "*(absent in this version)*" not in row
     assert [line.split("`")[1] for line in card.splitlines() if "*(absent in this version)*" in line] == [
-        "points", "points_count", "reference_points"]
+        "points", "points_count", "reference_points", "surface"]
     from nbvdata.card import _reproduce
 
     config = _config("episode.explore=0.5").dataset_dict()

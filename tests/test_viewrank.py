@@ -237,3 +237,33 @@ def test_the_ranker_plays_the_environment_and_never_repeats(rankers):
         observation, _, terminated, truncated, info = env.step(view)
         if terminated or truncated:
             break
+
+
+def test_generate_follows_a_ranker_and_labels_every_state(shards, rankers, tmp_path, capsys):
+    """DAgger rounds of a ranker (issue 63): runs move where the ranker would (the viewrank
+    provider), every state still labelled by the exhaustive search; a ranker file given to the
+    networks' provider says which provider takes it."""
+    from nbvdata.shards import Shard, view_state
+
+    ranker = rankers["viewrank-gbm"]
+    out = tmp_path / "round"
+    assert nbvdata_main(["generate", "--config", str(SMOKE), "--out", str(out), "--runs-per-mesh", "2", "--policy",
+                         str(ranker), "--policy-provider", "viewrank", "--no-progress"]) == 0
+    planner = RankerPlanner(ranker, view_sphere(load_config(SimConfig, SMOKE, []).views), load_config(SimConfig, SMOKE, []))
+    followed = 0
+    for path in sorted(out.glob("*.h5")):
+        with Shard(path) as shard:
+            assert json.loads(shard.file.attrs["policy"])["provider"] == "viewrank"
+            moves, nexts, last = shard["move"], shard["next_view"], shard["last_view"]
+            taken = view_state(shard["run"], shard["step"], last, len(shard["view_positions"]))
+            grids, positions = shard.grids(), shard["view_positions"]
+            for i in np.flatnonzero(moves == 2):  # the policy's moves: the ranker's own choice at that state
+                observation = Observation(grids[i], tuple(planner.views[v] for v in np.flatnonzero(taken[i])))
+                assert nexts[i] == planner.next_view(observation)
+                followed += 1
+            assert (shard["nbv_index"] >= 0).all()
+    assert followed > 0
+    code = nbvdata_main(["generate", "--config", str(SMOKE), "--out", str(tmp_path / "other"), "--policy", str(ranker),
+                         "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "add --policy-provider viewrank" in err[0]
