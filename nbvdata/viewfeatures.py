@@ -37,9 +37,22 @@ field's hand-crafted volumetric metrics as columns of it.
                        f(occupied share; 0.2) + f(occplane share; 0.8), f(x; a) the smooth cubic
                        that is 0 at x = 0 and 1, and peaks at 1 at x = a
   ``depth``            voxels passed in the grid before the first non-free voxel, per ray that meets one
+  ``proximity_shadow`` proximity count as ``rpg_ig_active_reconstruction`` implements it: the unknown
+                       voxels passed, each weighted n - k where k is its distance in voxel steps behind
+                       the first occupied voxel along a ray of a view scanned before (the minimum over
+                       those rays; untagged voxels weigh 0): unknown space just behind surface already
+                       measured, along the earlier scans' rays (``shadow_weights``, ``SHADOW_RAYS`` rays
+                       per scanned view) - the scans' history, which a grid alone does not hold
+  ``expected_surface`` the surface a ray can expect to newly see, given a surface prior P(surface) of
+                       each unknown voxel (``surface``; 0 without one): 1 - prod (1 - P) over the unknown
+                       voxels before the first occupied one
 
 - **Relative to the state's best view** (the column / its largest value over the views, 0 when
-  that is 0): ``unknown_first_rel``, ``information_rel``, ``proximity_rel``, ``rear_side_rel``.
+  that is 0): ``unknown_first_rel``, ``information_rel``, ``proximity_rel``, ``rear_side_rel``;
+  and of every hand-crafted metric, so that a ranker holds what each metric planner decides by
+  (``METRIC_RELATIVE``): ``occlusion_aware_rel``, ``unobserved_voxel_rel``,
+  ``rear_side_entropy_rel``, ``average_entropy_rel``, ``area_factor_rel``,
+  ``proximity_shadow_rel``, ``expected_surface_rel``.
 - **Camera history** (from the set of scanned positions, not their order): ``nearest_angle``,
   ``second_angle``, ``third_angle`` (radians to the nearest, second and third nearest scanned
   view; pi when there are fewer), ``within_30``, ``within_60`` (scanned views within 30 and 60
@@ -47,6 +60,9 @@ field's hand-crafted volumetric metrics as columns of it.
 - **The view itself**: ``elevation`` (the z of its unit direction), ``scans`` (views scanned so
   far), ``spacing`` (radians to its nearest other candidate view: how dense the view set is).
 - **The whole grid**: ``grid_unknown``, ``grid_occupied`` (shares of the grid's voxels).
+
+``FEATURE_GROUPS`` names the columns a ranker can be trained on in groups (``base``: the columns
+of the first ranker; ``metrics``: the metrics relative to the state's best; ``shadow``; ``surface``).
 
 Where ours differs from the sources (Delmerico et al.'s code, ``uzh-rpg/rpg_ig_active_reconstruction``):
 unknown is "never observed" here (they take 0.2 <= p <= 0.8, which would call a voxel hit once,
@@ -73,7 +89,7 @@ from scipy import ndimage
 from nbvdata.config import GridConfig, SensorConfig
 from nbvdata.grid import ray_voxels
 from nbvdata.sensor import camera_rays
-from nbvdata.views import ViewSet
+from nbvdata.views import ViewSet, look_at_rotations
 
 RAY_COLUMNS = ("grid_rays", "occupied_first", "unknown_first", "overlap", "unknown_passed", "information",
                "occlusion_aware", "unobserved_voxel", "rear_side_voxel", "rear_side_entropy", "proximity_count",
@@ -82,13 +98,20 @@ RELATIVE_COLUMNS = ("unknown_first_rel", "information_rel", "proximity_rel", "re
 HISTORY_COLUMNS = ("nearest_angle", "second_angle", "third_angle", "within_30", "within_60", "mean_cosine")
 VIEW_COLUMNS = ("elevation", "scans", "spacing")
 GRID_COLUMNS = ("grid_unknown", "grid_occupied")
-FEATURES = RAY_COLUMNS + RELATIVE_COLUMNS + HISTORY_COLUMNS + VIEW_COLUMNS + GRID_COLUMNS
+METRIC_RELATIVE = ("occlusion_aware_rel", "unobserved_voxel_rel", "rear_side_entropy_rel", "average_entropy_rel",
+                   "area_factor_rel")
+SHADOW_COLUMNS = ("proximity_shadow", "proximity_shadow_rel")
+SURFACE_COLUMNS = ("expected_surface", "expected_surface_rel")
+BASE = RAY_COLUMNS + RELATIVE_COLUMNS + HISTORY_COLUMNS + VIEW_COLUMNS + GRID_COLUMNS
+FEATURES = BASE + METRIC_RELATIVE + SHADOW_COLUMNS + SURFACE_COLUMNS
 """The columns of ``view_features``, in order (module docstring)."""
+FEATURE_GROUPS = {"base": BASE, "metrics": METRIC_RELATIVE, "shadow": SHADOW_COLUMNS, "surface": SURFACE_COLUMNS}
+"""Columns by group, for a ranker trained on some of them (``base``: the first ranker's)."""
 
 METRICS = {  # planner name -> the column it maximises
     "occlusion-aware": "occlusion_aware", "unobserved-voxel": "unobserved_voxel", "rear-side-voxel": "rear_side_voxel",
     "rear-side-entropy": "rear_side_entropy", "proximity-count": "proximity_count",
-    "average-entropy": "average_entropy", "area-factor": "area_factor",
+    "average-entropy": "average_entropy", "area-factor": "area_factor", "proximity-shadow": "proximity_shadow",
 }
 """The hand-crafted metrics as planners: each takes the unscanned view with the highest value of its column."""
 
@@ -104,11 +127,16 @@ NEAR = 2
 """``near_unknown`` and the area factor's occplane: unknown voxels within this many voxels of an occupied one."""
 AREA_DESIRED = (0.2, 0.8)
 """Vasquez-Gomez's desired shares of occupied and occplane rays (their code's defaults)."""
+SHADOW_RAYS = (64, 48)
+"""Rays per scanned view that tag the voxels behind its hits (``proximity_shadow``): about one ray
+per voxel at the object, where their code casts every measured point's ray."""
+_SHADOW_CACHE = 128  # scanned views whose dense walk a bundle keeps (a run scans tens)
 
 # The sums the walk writes per view (``_view_sums``), in this order.
 _SUMS = ("rays", "occupied_first", "unknown_first", "unknown_passed", "information", "occlusion_aware",
          "unobserved_voxel", "rear_side_voxel", "rear_side_entropy", "proximity_count", "near_unknown",
-         "entropy_hit", "voxels_hit", "area_occupied", "area_occplane", "area_unobserved", "depth")
+         "entropy_hit", "voxels_hit", "area_occupied", "area_occplane", "area_unobserved", "depth",
+         "proximity_shadow", "expected_surface")
 
 
 @dataclass(frozen=True)
@@ -121,6 +149,7 @@ class RayBundle:
         passes voxels[offsets[v * R + r]:offsets[v * R + r + 1]] in order (``nbvdata.grid.ray_voxels``)
     size : voxels per grid axis
     spacing : (V,) float64 radians from each view to its nearest other view
+    grid, sensor : the scene's (the scanned views' dense walks, ``shadow_walk``, are made from them)
     """
 
     views: ViewSet
@@ -129,6 +158,9 @@ class RayBundle:
     voxels: np.ndarray
     size: int
     spacing: np.ndarray
+    grid: GridConfig | None = None
+    sensor: SensorConfig | None = None
+    _walks: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def build(cls, views: ViewSet, grid: GridConfig, sensor: SensorConfig = SensorConfig(),
@@ -147,7 +179,23 @@ class RayBundle:
         cosines = np.clip(units @ units.T, -1.0, 1.0)
         np.fill_diagonal(cosines, -1.0)
         spacing = np.arccos(cosines.max(axis=1)) if len(units) > 1 else np.full(len(units), np.pi)
-        return cls(views, width * height, offsets, voxels, grid.size, spacing)
+        return cls(views, width * height, offsets, voxels, grid.size, spacing, grid, sensor)
+
+    def shadow_walk(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(offsets, voxels) of ``SHADOW_RAYS`` rays of a sensor scanned at ``position`` (3,),
+        looking at the centre (a view of the bundle or any other), made once and kept."""
+        key = np.asarray(position, dtype=np.float64).tobytes()
+        walk = self._walks.get(key)
+        if walk is None:
+            if self.grid is None or self.sensor is None:
+                raise ValueError("a RayBundle made without its grid and sensor: make it with RayBundle.build")
+            position = np.asarray(position, dtype=np.float64)[None]
+            one = ViewSet(position, look_at_rotations(position))
+            dense = RayBundle.build(one, self.grid, self.sensor, *SHADOW_RAYS)
+            if len(self._walks) >= _SHADOW_CACHE:
+                self._walks.pop(next(iter(self._walks)))
+            walk = self._walks[key] = (dense.offsets, dense.voxels)
+        return walk
 
 
 def occupied_distance(probabilities: np.ndarray, reach: int = PROXIMITY) -> np.ndarray:
@@ -160,23 +208,44 @@ def occupied_distance(probabilities: np.ndarray, reach: int = PROXIMITY) -> np.n
     return np.minimum(distance, reach).astype(np.int8).reshape(-1)
 
 
-def view_sums(probabilities: np.ndarray, bundle: RayBundle) -> np.ndarray:
-    """(V, len(_SUMS)) float64: the walk's sums per view for a (n, n, n) grid (module docstring)."""
+def shadow_weights(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBundle) -> np.ndarray:
+    """(n^3,) float64: each unknown voxel's ``proximity_shadow`` weight, n - k for the fewest voxel
+    steps k it lies behind the first occupied voxel along a ray of a scan from ``scanned`` (P, 3)
+    (``SHADOW_RAYS`` rays per scan, ``RayBundle.shadow_walk``), 0 where no such ray passes it."""
+    flat = np.ascontiguousarray(probabilities, dtype=np.float32).reshape(-1)
+    n = bundle.size
+    tags = np.full(flat.size, n, dtype=np.int32)
+    for position in np.asarray(scanned, dtype=np.float64).reshape(-1, 3):
+        offsets, voxels = bundle.shadow_walk(position)
+        _shadow_tags(flat, offsets, voxels, tags)
+    return np.where(flat == 0.5, (n - tags).astype(np.float64), 0.0)
+
+
+def view_sums(probabilities: np.ndarray, bundle: RayBundle, scanned: np.ndarray | None = None,
+              surface: np.ndarray | None = None) -> np.ndarray:
+    """(V, len(_SUMS)) float64: the walk's sums per view for a (n, n, n) grid (module docstring);
+    ``scanned`` (P, 3): the scans' positions (``proximity_shadow``; None: none), ``surface`` (n, n, n)
+    a prior's P(surface) of each voxel (``expected_surface``; None: 0)."""
     probabilities = np.ascontiguousarray(probabilities, dtype=np.float32)
     if probabilities.shape != (bundle.size,) * 3:
         raise ValueError(f"a grid of shape {probabilities.shape}; the ray bundle was made for {(bundle.size,) * 3}")
     flat = probabilities.reshape(-1)
     sums = np.zeros((len(bundle.views), len(_SUMS)))
-    _view_sums(flat, _entropies(flat), occupied_distance(probabilities), bundle.offsets, bundle.voxels, bundle.rays,
-               PROXIMITY, NEAR, sums)
+    shadow = shadow_weights(probabilities, scanned, bundle) if scanned is not None and len(scanned) else \
+        np.zeros(flat.size)
+    prior = np.zeros(flat.size) if surface is None else np.ascontiguousarray(surface, dtype=np.float64).reshape(-1)
+    _view_sums(flat, _entropies(flat), occupied_distance(probabilities), shadow, prior, bundle.offsets,
+               bundle.voxels, bundle.rays, PROXIMITY, NEAR, sums)
     return sums
 
 
-def view_features(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBundle) -> np.ndarray:
+def view_features(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBundle,
+                  surface: np.ndarray | None = None) -> np.ndarray:
     """(V, F) float32, the columns ``FEATURES``, of every view of ``bundle`` at the state of the
     (n, n, n) grid ``probabilities`` (authors' encoding, 0.5 = unknown) after scans from the
-    positions ``scanned`` (P, 3) (object-centred, any radius, any order; P may be 0)."""
-    sums = view_sums(probabilities, bundle)
+    positions ``scanned`` (P, 3) (object-centred, any radius, any order; P may be 0); ``surface``
+    (n, n, n): a surface prior's P(surface) per voxel, for ``expected_surface`` (None: 0)."""
+    sums = view_sums(probabilities, bundle, scanned, surface)
     columns = dict(zip(_SUMS, sums.T))
     rays = float(bundle.rays)
     met = columns["occupied_first"] + columns["unknown_first"]
@@ -184,14 +253,16 @@ def view_features(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBun
            "unknown_first": columns["unknown_first"] / rays,
            "overlap": _ratio(columns["occupied_first"], met)}
     for name in ("unknown_passed", "information", "occlusion_aware", "unobserved_voxel", "rear_side_voxel",
-                 "rear_side_entropy", "proximity_count", "near_unknown"):
+                 "rear_side_entropy", "proximity_count", "near_unknown", "proximity_shadow", "expected_surface"):
         out[name] = columns[name] / rays
     out["average_entropy"] = _ratio(columns["entropy_hit"], columns["voxels_hit"])
     registered = columns["area_occupied"] + columns["area_occplane"] + columns["area_unobserved"]
     out["area_factor"] = (area_factor(_ratio(columns["area_occupied"], registered), AREA_DESIRED[0])
                           + area_factor(_ratio(columns["area_occplane"], registered), AREA_DESIRED[1]))
     out["depth"] = _ratio(columns["depth"], met)
-    for relative, name in zip(RELATIVE_COLUMNS, ("unknown_first", "information", "proximity_count", "rear_side_voxel")):
+    relatives = dict(zip(RELATIVE_COLUMNS, ("unknown_first", "information", "proximity_count", "rear_side_voxel")))
+    relatives |= {name: name.removesuffix("_rel") for name in METRIC_RELATIVE + SHADOW_COLUMNS[1:] + SURFACE_COLUMNS[1:]}
+    for relative, name in relatives.items():
         best = out[name].max() if len(out[name]) else 0.0
         out[relative] = out[name] / best if best > 0 else np.zeros_like(out[name])
     out |= camera_history(bundle.views.unit_positions, scanned)
@@ -261,10 +332,29 @@ def _entropies(probabilities):
 
 
 @numba.njit(cache=True)
-def _view_sums(probabilities, entropies, distance, offsets, voxels, rays, reach, near, sums):
+def _shadow_tags(probabilities, offsets, voxels, tags):
+    """For every ray of a walk (``offsets``, ``voxels``), lower ``tags`` (n^3,) int32 of each voxel
+    k steps behind the ray's first occupied voxel to k where that is fewer (unknown voxels only
+    are read later; the ray goes on through everything behind the hit, as a measured ray extended)."""
+    for ray in range(len(offsets) - 1):
+        behind = -1
+        for index in range(offsets[ray], offsets[ray + 1]):
+            voxel = voxels[index]
+            if behind < 0:
+                if probabilities[voxel] > 0.5:
+                    behind = 0
+                continue
+            behind += 1
+            if probabilities[voxel] == 0.5 and behind < tags[voxel]:
+                tags[voxel] = behind
+
+
+@numba.njit(cache=True)
+def _view_sums(probabilities, entropies, distance, shadow, surface, offsets, voxels, rays, reach, near, sums):
     """Walk every ray of every view (module docstring) over the flat grid ``probabilities`` (n^3,)
-    float32 with its voxels' ``entropies`` (n^3,) float64 and ``distance`` (n^3,) int8 to the
-    nearest occupied voxel; add each ray's values to
+    float32 with its voxels' ``entropies`` (n^3,) float64, ``distance`` (n^3,) int8 to the
+    nearest occupied voxel, ``shadow`` (n^3,) float64 weights and ``surface`` (n^3,) float64
+    P(surface); add each ray's values to
     its view's row of ``sums`` (V, len(_SUMS)) float64, in ray order (the same sums everywhere)."""
     views = sums.shape[0]
     for v in range(views):
@@ -279,6 +369,7 @@ def _view_sums(probabilities, entropies, distance, offsets, voxels, rays, reach,
             passed, information, aware, unobserved = 0.0, 0.0, 0.0, 0.0
             run_entropy, entropy_sum, count = 0.0, 0.0, 0.0
             proximity, near_count, depth = 0.0, 0.0, 0.0
+            behind, unseen = 0.0, 1.0  # the shadow's weights passed; the chance no surface is met yet
             previous_unknown, previous_free = False, True  # nothing before the grid: free
             registered = 0  # area factor: 1 occupied, 2 occplane
             hit = False
@@ -312,6 +403,8 @@ def _view_sums(probabilities, entropies, distance, offsets, voxels, rays, reach,
                     run_entropy += visibility * h
                     if d < reach:
                         proximity += reach - d
+                    behind += shadow[voxel]
+                    unseen *= 1.0 - surface[voxel]
                     if d <= near:
                         near_count += 1.0
                         if registered == 0:
@@ -335,6 +428,8 @@ def _view_sums(probabilities, entropies, distance, offsets, voxels, rays, reach,
             sums[v, 6] += unobserved
             sums[v, 9] += proximity
             sums[v, 10] += near_count
+            sums[v, 17] += behind
+            sums[v, 18] += 1.0 - unseen
             if hit:
                 sums[v, 11] += entropy_sum
                 sums[v, 12] += count

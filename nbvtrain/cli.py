@@ -44,9 +44,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _fit_ranker(args)
     if args.model in COVER_MODELS:
         return _fit_cover(args)
-    for flag in ("width", "train_states"):
+    for flag, of in (("width", "scvp-net"), ("train_states", "scvp-net"), ("features", "viewrank-gbm|viewrank-mlp"),
+                     ("label", "viewrank-gbm")):
         if getattr(args, flag, None) is not None:
-            raise ConfigError(f"--{flag.replace('_', '-')}: an option of --model scvp-net only; leave it out")
+            raise ConfigError(f"--{flag.replace('_', '-')}: an option of --model {of} only; leave it out")
     from nbvtrain.config import TrainConfig
     from nbvtrain.train import Interrupted, fit, load_run_config
 
@@ -76,7 +77,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 RANKERS = ("viewrank-gbm", "viewrank-mlp")  # nbvtrain.viewrank.KINDS, without importing it for --help
 RANKER_FLAGS = {"rays": "rays", "sample": "sample", "seed": "seed", "trees": "trees", "lr": "learning_rate",
-                "epochs": "epochs", "threads": "threads"}
+                "epochs": "epochs", "threads": "threads", "features": "features", "label": "label"}
 
 
 def _fit_ranker(args: argparse.Namespace) -> int:
@@ -111,7 +112,7 @@ def _fit_cover(args: argparse.Namespace) -> int:
                "scvp-net": ("seed", "epochs", "batch_size", "lr", "threads", "width", "train_states")}[args.model]
     for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
                  "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "trees", "epochs",
-                 "batch_size", "width", "train_states", "feature_cache"):
+                 "batch_size", "width", "train_states", "feature_cache", "features", "label"):
         if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
             raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
     if args.split == "random":
@@ -155,6 +156,14 @@ def _cover_model_flags(parser: argparse.ArgumentParser) -> None:
                         "--model cover-gbm (docs/setcover.md)")
     parser.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
                         "fit --model scvp-net (docs/setcover.md)")
+
+
+def _names(text: str) -> tuple[str, ...]:
+    """'base,metrics' -> ('base', 'metrics')."""
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: name at least one group or column, comma-separated")
+    return names
 
 
 def _rays(text: str) -> tuple[int, int]:
@@ -697,6 +706,10 @@ def _add_fit(sub, released: dict[str, str]) -> None:
     fit.add_argument("--sample", type=non_negative_int, help="rankers: training rows per state at most (viewrank default 64, cover-gbm 0; "
                      "0 = every unscanned view)")
     fit.add_argument("--trees", type=positive_int, help="viewrank-gbm: boosting rounds at most (default 600)")
+    fit.add_argument("--features", type=_names, help="rankers: the columns read, groups (base, metrics, shadow, "
+                     "surface) or column names, comma-separated (default base: the first ranker's; docs/viewrank.md)")
+    fit.add_argument("--label", choices=["graded", "scone", "vin"], help="viewrank-gbm: lambdarank on graded gains "
+                     "(default), SCONE's L1 on gain / the state's mean, or VIN-NBV's stage-normalised ordinal bins")
     fit.add_argument("--workers", type=positive_int, default=2, help="rankers: processes computing the features "
                      "(default 2)")
     fit.add_argument("--feature-cache", type=Path, help="rankers: folder keeping each shard's features for the next "
@@ -826,7 +839,7 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--planners", help="comma-separated names of registered planners (nbvtrain.planners.PLANNERS: "
                           "scores, regression, classification, infogain, oracle, setcover, random, farthest, viewrank, "
                           "hybrid and the hand-crafted metrics occlusion-aware, unobserved-voxel, rear-side-voxel, "
-                          "rear-side-entropy, proximity-count, average-entropy, area-factor; default all but hybrid and "
+                          "rear-side-entropy, proximity-count, average-entropy, area-factor, proximity-shadow; default all but hybrid and "
                           "the metrics; docs/evaluation.md) and policies on nbvdata.env's observation as "
                           "module:function or path/to/file.py:function (docs/env.md)")
     evaluate.add_argument("--no-stall", action="store_true", help="regression and classification never repeat a "

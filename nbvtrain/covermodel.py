@@ -31,7 +31,7 @@ from nbvdata.config import SimConfig
 from nbvdata.files import write_atomic
 from nbvdata.shards import Shard, ShardError, has_covers
 from nbvdata.views import ViewSet
-from nbvdata.viewfeatures import BUNDLE, FEATURES, view_features
+from nbvdata.viewfeatures import BASE, BUNDLE, FEATURES, view_features
 from nbvtrain.checkpoint import CheckpointError
 from nbvtrain.rankdata import RankingData, bundle_for
 from nbvtrain.viewrank import check_grid, check_rows
@@ -197,11 +197,15 @@ class CoverModel:
 
     kind = "cover-gbm"
 
-    def __init__(self, booster, rays: tuple[int, int], scene: dict, threshold: float, training: dict):
+    def __init__(self, booster, rays: tuple[int, int], scene: dict, threshold: float, training: dict,
+                 features: list[str] = BASE):
         self.booster, self.rays, self.scene, self.threshold, self.training = booster, tuple(rays), scene, threshold, training
+        self.features = list(features)
+        self.columns = np.array([FEATURES.index(name) for name in self.features], dtype=np.int64)
         self.path: Path | None = None
 
     def probabilities(self, features: np.ndarray) -> np.ndarray:
+        """(V,) probabilities of (V, F) rows of its own columns (``features``)."""
         features = np.asarray(features, dtype=np.float32)
         if not len(features):
             return np.zeros(0)
@@ -211,7 +215,8 @@ class CoverModel:
                            config: SimConfig) -> np.ndarray:
         """(V,) each of ``views``' probability of being in the cover of the state of the (n, n, n)
         grid after scans from ``scanned`` (P, 3) positions."""
-        return self.probabilities(view_features(probabilities, scanned, bundle_for(views, config, self.rays)))
+        features = view_features(probabilities, scanned, bundle_for(views, config, self.rays))
+        return self.probabilities(features[:, self.columns])
 
     def check_scene(self, config: SimConfig, where: str) -> None:
         """ConfigError when ``config``'s grid is not the one the model was trained on."""
@@ -235,7 +240,7 @@ class CoverModel:
         from nbvtrain._lightgbm import TEXT_KEY, text_digest
 
         model = self.booster.model_to_string()
-        head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": list(FEATURES),
+        head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": self.features,
                 "rays": list(self.rays), "scene": self.scene, "threshold": self.threshold, "training": self.training,
                 TEXT_KEY: text_digest(model), "lightgbm": model}
         write_atomic(Path(path), json.dumps(head, indent=1, allow_nan=False))
@@ -258,11 +263,18 @@ def load_cover_model(path: str | Path) -> CoverModel:
     missing = [key for key in ("features", "rays", "scene", "threshold", "training", "lightgbm") if key not in head]
     if missing:
         raise CheckpointError(f"{path}: not a cover model (no {', '.join(missing)}); {USE_FIT}")
-    if head["features"] != list(FEATURES):
-        raise CheckpointError(f"{path}: a cover model of other features ({len(head['features'])} columns, this "
-                              f"nbvtrain computes {len(FEATURES)}); retrain it with nbvtrain fit --model cover-gbm")
+    unknown = [name for name in head["features"] if name not in FEATURES] if isinstance(head["features"], list) \
+        else ["(not a list)"]
+    if unknown:
+        raise CheckpointError(f"{path}: a cover model of other features ({', '.join(map(str, unknown[:3]))} are none "
+                              f"of this nbvtrain's {len(FEATURES)} columns); retrain it with nbvtrain fit --model "
+                              "cover-gbm")
     booster = load_booster(head, path, USE_FIT, CheckpointError)
-    model = CoverModel(booster, tuple(head["rays"]), head["scene"], float(head["threshold"]), head["training"])
+    if booster.num_feature() != len(head["features"]):
+        raise CheckpointError(f"{path}: its LightGBM model reads {booster.num_feature()} features, the file names "
+                              f"{len(head['features'])}; {USE_FIT}")
+    model = CoverModel(booster, tuple(head["rays"]), head["scene"], float(head["threshold"]), head["training"],
+                       head["features"])
     model.path = path
     return model
 
@@ -284,9 +296,10 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
               "num_leaves": config.leaves, "min_data_in_leaf": config.min_rows, "feature_fraction": 0.9,
               "num_threads": config.threads, "deterministic": True, "force_row_wise": True, "seed": config.seed,
               "verbosity": -1}
-    train_set = lightgbm.Dataset(train.rows.features, label=train.member.astype(np.int32),
-                                 feature_name=list(FEATURES), free_raw_data=False)
-    val_set = lightgbm.Dataset(val.rows.features, label=val.member.astype(np.int32), reference=train_set)
+    columns = [FEATURES.index(name) for name in BASE]
+    train_set = lightgbm.Dataset(train.rows.features[:, columns], label=train.member.astype(np.int32),
+                                 feature_name=list(BASE), free_raw_data=False)
+    val_set = lightgbm.Dataset(val.rows.features[:, columns], label=val.member.astype(np.int32), reference=train_set)
     booster = lightgbm.train(params, train_set, num_boost_round=config.trees, valid_sets=[val_set],
                              valid_names=["val"], callbacks=[lightgbm.early_stopping(config.patience, verbose=False)])
     best = booster.best_iteration or booster.current_iteration()
@@ -294,7 +307,7 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
     model = CoverModel(booster, config.rays, _scene(train_parts[0].path), 0.5,
                        asdict(config) | {"rounds": best, "sources": records,
                                          "view_sets": sorted(set(train.rows.layouts.tolist()))})
-    probabilities = model.probabilities(val.rows.features)
+    probabilities = model.probabilities(val.rows.features[:, columns])
     model.threshold, table = choose_threshold(probabilities, val)
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / "cover.json")

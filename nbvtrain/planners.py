@@ -38,7 +38,7 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
   view adds anything at the scene's match distance, ``farthest``'s view.
 - ``viewrank``: a ranker of per-view features (``nbvtrain.viewrank``, ``RankerPlanner``) on any view set.
 - ``occlusion-aware``, ``unobserved-voxel``, ``rear-side-voxel``, ``rear-side-entropy``,
-  ``proximity-count``, ``average-entropy``, ``area-factor``: the field's hand-crafted metrics over
+  ``proximity-count``, ``average-entropy``, ``area-factor``, ``proximity-shadow``: the field's hand-crafted metrics over
   every candidate view (``nbvdata.viewfeatures.METRICS``, ``MetricPlanner``).
 - ``setcover``: SCVP's one-shot plan, privileged like the oracle: at its first decision it
   solves the state's set cover (``nbvdata.setcover``, the fewest views that cover the rest) once,
@@ -1020,7 +1020,10 @@ for _metric, _what in (("occlusion-aware", "visibility-weighted entropy of every
                        ("average-entropy", "mean entropy per voxel along its rays that meet surface (Kriegel et al. "
                                            "2012, over every view)"),
                        ("area-factor", "Vasquez-Gomez et al. 2014's area factor: occupied and occplane shares of "
-                                       "its rays near 20 % and 80 %")):
+                                       "its rays near 20 % and 80 %"),
+                       ("proximity-shadow", "unknown voxels its rays pass, weighted by nearness behind surface hit by "
+                                            "the earlier scans' rays (proximity count as rpg_ig_active_reconstruction "
+                                            "implements it)")):
     register_planner(_metric, ("grid", "poses"), f"the unscanned candidate view with the most {_what}; over every "
                      "candidate view, from its coarse ray bundle (`nbvdata.viewfeatures`)", default=False)(
         lambda context, _metric=_metric: [MetricPlanner(_metric, context.views, context.config)])

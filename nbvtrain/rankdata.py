@@ -43,6 +43,7 @@ class RankingData:
     views : (M,) int32 each row's candidate view index in its state's view set
     sizes : (S,) int64 rows per state
     best, best_other : (S,) float32 the state's largest label (and other label) over all its unscanned views
+    mean, mean_other : (S,) float32 the state's mean label (and other label) over all its unscanned views
     farthest, farthest_other : (S,) float32 the label (and other label) of ``farthest``'s choice at the state
     target : (S,) str "valid" or "all", what ``gains`` holds
     steps : (S,) int32 scans taken; mesh_ids : (S,) str; layouts : (S,) str ("hemisphere-500", ...)
@@ -56,6 +57,8 @@ class RankingData:
     sizes: np.ndarray
     best: np.ndarray
     best_other: np.ndarray
+    mean: np.ndarray
+    mean_other: np.ndarray
     farthest: np.ndarray
     farthest_other: np.ndarray
     target: np.ndarray
@@ -104,7 +107,8 @@ class RankingData:
         if not len(self.target) or self.target[0] == target:
             return self
         return dataclasses.replace(self, gains=self.other, other=self.gains, best=self.best_other,
-                                   best_other=self.best, farthest=self.farthest_other, farthest_other=self.farthest,
+                                   best_other=self.best, mean=self.mean_other, mean_other=self.mean,
+                                   farthest=self.farthest_other, farthest_other=self.farthest,
                                    target=np.full(len(self.target), target))
 
     def subset(self, states: np.ndarray) -> "RankingData":
@@ -176,7 +180,8 @@ def shard_rows(path: Path, rays: tuple[int, int] = BUNDLE, sample: int = 0, seed
     valid = np.where(overlaps.astype(np.float64) >= config.oracle.min_overlap, gains, 0.0).astype(np.float32)
     gains = gains.astype(np.float32)
     units = views.unit_positions
-    features, labels, others, rows_views, sizes, best, best_other, farthest, farthest_other = ([] for _ in range(9))
+    features, labels, others, rows_views, sizes, best, best_other, mean, mean_other, farthest, farthest_other = (
+        [] for _ in range(11))
     for k, i in enumerate(index):
         scanned = positions[taken[i]]
         free = np.flatnonzero(~taken[i])
@@ -192,6 +197,8 @@ def shard_rows(path: Path, rays: tuple[int, int] = BUNDLE, sample: int = 0, seed
         sizes.append(len(rows))
         best.append(valid[k, free].max() if len(free) else 0.0)
         best_other.append(gains[k, free].max() if len(free) else 0.0)
+        mean.append(valid[k, free].mean() if len(free) else 0.0)
+        mean_other.append(gains[k, free].mean() if len(free) else 0.0)
         choice = farthest_view(units, scanned)
         farthest.append(valid[k, choice])
         farthest_other.append(gains[k, choice])
@@ -204,7 +211,8 @@ def shard_rows(path: Path, rays: tuple[int, int] = BUNDLE, sample: int = 0, seed
         features=joined(features, np.float32, (0, width)), gains=joined(labels, np.float32),
         other=joined(others, np.float32), views=joined(rows_views, np.int32),
         sizes=np.array(sizes, dtype=np.int64), best=np.array(best, dtype=np.float32),
-        best_other=np.array(best_other, dtype=np.float32), farthest=np.array(farthest, dtype=np.float32),
+        best_other=np.array(best_other, dtype=np.float32), mean=np.array(mean, dtype=np.float32),
+        mean_other=np.array(mean_other, dtype=np.float32), farthest=np.array(farthest, dtype=np.float32),
         farthest_other=np.array(farthest_other, dtype=np.float32), target=np.full(len(index), "valid"),
         steps=step[index].astype(np.int32), mesh_ids=mesh_ids,
         layouts=np.full(len(index), layout_label(config)), coverage=np.asarray(coverage, dtype=np.float32))
@@ -226,7 +234,7 @@ def cache_path(cache: Path, digest: str, rays: tuple[int, int], sample: int, see
                states: np.ndarray | None) -> Path:
     """Where ``cached_rows`` keeps a shard's rows: named by its sha256 and every argument."""
     chosen = "all" if states is None else hashlib.sha256(np.asarray(states, dtype=np.int64).tobytes()).hexdigest()[:12]
-    return Path(cache) / f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}-f{len(FEATURES)}-v2.npz"
+    return Path(cache) / f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}-f{len(FEATURES)}-v3.npz"
 
 
 def cached_rows(path: Path, cache: Path | None, rays: tuple[int, int], sample: int, seed: int,

@@ -162,7 +162,7 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
     path = out / ("viewrank.json" if config.model == "viewrank-gbm" else "viewrank.pt")
     report.ranker.training |= {"target": target, "sources": records}
     report.ranker.save(path)
-    scores = report.ranker.scores(val.features)
+    scores = report.ranker.scores(val.features[:, report.ranker.columns])
     by_step = {int(step): val.gain_ratio(scores, val.steps == step) for step in np.unique(val.steps)}
     metrics = {"model": config.model, "file": path.name, "target": target,
                "val_gain_ratio": report.val_gain_ratio, "per_layout": report.per_layout,

@@ -36,11 +36,15 @@ import numpy as np
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.files import write_atomic
 from nbvdata.views import ViewSet
-from nbvdata.viewfeatures import BUNDLE, FEATURES, view_features
+from nbvdata.viewfeatures import BUNDLE, FEATURE_GROUPS, FEATURES, view_features
 from nbvtrain.checkpoint import CheckpointError, check_weights
 from nbvtrain.rankdata import RankingData, bundle_for
 
 KINDS = ("viewrank-gbm", "viewrank-mlp")
+LABELS = ("graded", "scone", "vin")
+"""gbm's labels (``RankerConfig.label``): lambdarank on grades of gain / the state's best (``graded``),
+SCONE's L1 regression on gain / the state's mean gain (``scone``), VIN-NBV's ordinal bins of the
+gains z-scored per capture stage, as lambdarank grades (``vin``)."""
 FORMAT = "nbvtrain-viewrank"
 FORMAT_VERSION = 1
 USE_FIT = "pass a ranker written by nbvtrain fit --model viewrank-gbm|viewrank-mlp (runs/NAME/viewrank.json or .pt)"
@@ -54,6 +58,10 @@ class RankerConfig:
     """``viewrank-gbm`` (LightGBM lambdarank) or ``viewrank-mlp`` (a small torch scorer)."""
     rays: tuple[int, int] = BUNDLE
     """Rays per view of the features' coarse bundle (width, height)."""
+    features: tuple[str, ...] = ("base",)
+    """The columns it reads: groups of ``nbvdata.viewfeatures.FEATURE_GROUPS`` or column names."""
+    label: str = "graded"
+    """gbm: what it learns (``LABELS``)."""
     sample: int = 64
     """Training rows per state at most (its best quarter and a random rest); validation keeps all."""
     seed: int = 0
@@ -84,7 +92,29 @@ class RankerConfig:
     def __post_init__(self) -> None:
         if self.model not in KINDS:
             raise ConfigError(f"--model {self.model}: a ranker is one of {', '.join(KINDS)}")
+        if self.label not in LABELS:
+            raise ConfigError(f"--label {self.label}: one of {', '.join(LABELS)}")
         check_rows(self.rays, self.sample)
+        feature_columns(self.features)
+
+    @property
+    def columns(self) -> list[str]:
+        """The column names of ``features``, in ``FEATURES``' order."""
+        return feature_columns(self.features)
+
+
+def feature_columns(spec) -> list[str]:
+    """The columns (``FEATURES``' order) of groups (``FEATURE_GROUPS``) and column names; ConfigError
+    naming an unknown one."""
+    chosen = set()
+    for item in spec:
+        if item in FEATURE_GROUPS:
+            chosen |= set(FEATURE_GROUPS[item])
+        elif item in FEATURES:
+            chosen.add(item)
+        else:
+            raise ConfigError(f"--features {item}: neither a group ({', '.join(FEATURE_GROUPS)}) nor a feature column")
+    return [name for name in FEATURES if name in chosen]
 
 
 def check_rows(rays: tuple[int, int], sample: int) -> None:
@@ -109,14 +139,20 @@ def check_grid(scene: dict, config: SimConfig, where: str, what: str) -> None:
 class ViewRanker:
     """A trained ranker: ``scores(features) -> (V,)``, higher is better; ``view_scores`` from a state.
 
-    kind : one of ``KINDS``; features : the column names it reads (``FEATURES``); rays : its bundle
-    scene : the grid it was trained on ({grid_size, grid_extent}); training : how it was made
+    kind : one of ``KINDS``; features : the column names it reads (some of ``FEATURES``); rays : its
+    bundle; scene : the grid it was trained on ({grid_size, grid_extent}); training : how it was made.
+    A LightGBM model scores through its compiled trees (``nbvtrain.trees``: LightGBM's scores, bit
+    for bit, in a fraction of its time on one decision's rows).
     """
 
     def __init__(self, kind: str, features: list[str], rays: tuple[int, int], scene: dict, training: dict,
                  booster=None, network=None, mean: np.ndarray | None = None, std: np.ndarray | None = None):
+        from nbvtrain.trees import compile_trees
+
         self.kind, self.features, self.rays, self.scene, self.training = kind, list(features), tuple(rays), scene, training
         self.booster, self.network, self.mean, self.std = booster, network, mean, std
+        self.columns = np.array([FEATURES.index(name) for name in self.features], dtype=np.int64)
+        self.trees = compile_trees(booster.model_to_string()) if booster is not None else None
         self.path: Path | None = None
 
     @property
@@ -124,12 +160,14 @@ class ViewRanker:
         return self.kind
 
     def scores(self, features: np.ndarray) -> np.ndarray:
-        """(V,) float64 scores of (V, F) feature rows."""
+        """(V,) float64 scores of (V, F) rows of its own columns (``features``)."""
         features = np.asarray(features, dtype=np.float32)
         if not len(features):
             return np.zeros(0)
+        if self.trees is not None:
+            return self.trees.raw(features)
         if self.booster is not None:
-            return np.asarray(self.booster.predict(features, num_threads=1), dtype=np.float64)
+            return np.asarray(self.booster.predict(features, num_threads=1, raw_score=True), dtype=np.float64)
         import torch
 
         with torch.no_grad():
@@ -144,7 +182,7 @@ class ViewRanker:
                     config: SimConfig) -> np.ndarray:
         """(V,) scores of ``views`` at the state of the (n, n, n) grid after scans from ``scanned``
         (P, 3) positions; ``config``: the scene's grid and sensor."""
-        return self.scores(view_features(probabilities, scanned, bundle_for(views, config, self.rays)))
+        return self.scores(view_features(probabilities, scanned, bundle_for(views, config, self.rays))[:, self.columns])
 
     def save(self, path: Path) -> None:
         """Write the model file (module docstring), whole or not at all."""
@@ -201,6 +239,7 @@ def load_ranker(path: str | Path) -> ViewRanker:
         except (UnicodeDecodeError, json.JSONDecodeError) as error:
             raise CheckpointError(f"{path}: not a ranker file (not JSON: {type(error).__name__}); {USE_FIT}") from None
         _check_head(head, path, "viewrank-gbm")
+        _check_features(head, path)
         from nbvtrain._lightgbm import load_booster
 
         booster = load_booster(head, path, USE_FIT, CheckpointError)
@@ -218,6 +257,7 @@ def load_ranker(path: str | Path) -> ViewRanker:
             raise CheckpointError(f"{path}: not a ranker file ({type(error).__name__}: "
                                   f"{' '.join(str(error).split())[:100]}); {USE_FIT}") from None
         _check_head(state, path, "viewrank-mlp")
+        _check_features(state, path)
         check_weights(state | {"moments": _moments(state)}, path, USE_FIT, "state_dict", "moments")
         try:
             network = scorer(len(state["features"]), tuple(state["hidden"]))
@@ -228,12 +268,18 @@ def load_ranker(path: str | Path) -> ViewRanker:
         network.eval()
         ranker = ViewRanker(state["kind"], state["features"], tuple(state["rays"]), state["scene"], state["training"],
                             network=network, mean=state["mean"].numpy(), std=state["std"].numpy())
-    if ranker.features != list(FEATURES):
-        raise CheckpointError(f"{path}: a ranker of other features ({len(ranker.features)} columns, this nbvtrain "
-                              f"computes {len(FEATURES)}); retrain it with this version (nbvtrain fit --model "
-                              f"{ranker.kind})")
     ranker.path = path
     return ranker
+
+
+def _check_features(head: dict, path: Path) -> None:
+    """CheckpointError when a ranker reads columns this nbvtrain does not compute."""
+    names = head["features"]
+    unknown = [name for name in names if name not in FEATURES] if isinstance(names, list) else ["(not a list)"]
+    if unknown:
+        raise CheckpointError(f"{path}: a ranker of other features ({', '.join(map(str, unknown[:3]))} are none of "
+                              f"this nbvtrain's {len(FEATURES)} columns); retrain it with this version (nbvtrain fit "
+                              f"--model {head['kind']})")
 
 
 def _moments(state: dict) -> dict:
@@ -292,24 +338,57 @@ def grades(data: RankingData, levels: int) -> np.ndarray:
     return np.clip(np.rint(levels * share), 0, levels).astype(np.int32)
 
 
+def vin_grades(data: RankingData, bins: int) -> np.ndarray:
+    """(M,) int32 VIN-NBV's labels: each row's gain z-scored among the rows of its capture stage
+    (the states of its scan step), clipped to [-3, 3], in ``bins`` equal-frequency ordinal bins
+    (0 the lowest) over all rows."""
+    steps = np.repeat(data.steps, data.sizes)
+    gains = data.gains.astype(np.float64)
+    z = np.zeros(len(gains))
+    for step in np.unique(steps):
+        rows = steps == step
+        spread = gains[rows].std()
+        z[rows] = (gains[rows] - gains[rows].mean()) / spread if spread > 0 else 0.0
+    z = np.clip(z, -3.0, 3.0)
+    edges = np.quantile(z, np.linspace(0, 1, bins + 1)[1:-1]) if len(z) else np.zeros(0)
+    return np.searchsorted(edges, z, side="right").astype(np.int32)
+
+
+def scone_targets(data: RankingData) -> np.ndarray:
+    """(M,) float64 SCONE's targets: each row's gain over its state's mean gain (all its unscanned
+    views; 0 in a state with nothing to gain)."""
+    mean = np.repeat(data.mean, data.sizes).astype(np.float64)
+    return np.divide(data.gains.astype(np.float64), mean, out=np.zeros(len(mean)), where=mean > 0)
+
+
 def per_layout(data: RankingData, scores: np.ndarray) -> dict[str, float]:
     """The gain ratio of ``scores`` on each layout's states."""
     return {layout: data.gain_ratio(scores, data.layouts == layout) for layout in sorted(set(data.layouts.tolist()))}
 
 
 def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: dict) -> FitReport:
-    """LightGBM lambdarank on ``train``, the round with the best validation gain ratio kept."""
+    """LightGBM on ``train``'s ``config.columns`` with ``config.label``'s objective (``LABELS``:
+    lambdarank, or SCONE's L1 regression), the round with the best validation gain ratio kept."""
     from nbvtrain._lightgbm import lightgbm
 
     started = time.perf_counter()
+    columns = [FEATURES.index(name) for name in config.columns]
     params = {"objective": "lambdarank", "metric": "None", "learning_rate": config.learning_rate,
               "num_leaves": config.leaves, "min_data_in_leaf": config.min_rows, "feature_fraction": 0.9,
               "lambdarank_truncation_level": 20, "label_gain": [2.0 ** (g / 2) - 1 for g in range(config.grades + 1)],
               "num_threads": config.threads, "deterministic": True, "force_row_wise": True, "seed": config.seed,
               "verbosity": -1}
-    train_set = lightgbm.Dataset(train.features, label=grades(train, config.grades), group=train.sizes,
-                                 feature_name=list(FEATURES), free_raw_data=False)
-    val_set = lightgbm.Dataset(val.features, label=grades(val, config.grades), group=val.sizes, reference=train_set)
+    if config.label == "scone":
+        params = {key: value for key, value in params.items() if not key.startswith(("lambdarank", "label_gain"))}
+        params["objective"] = "regression_l1"
+        labels, groups = scone_targets(train), {}
+    else:
+        labels = grades(train, config.grades) if config.label == "graded" else vin_grades(train, config.grades)
+        groups = {"group": train.sizes}
+    train_set = lightgbm.Dataset(train.features[:, columns], label=labels, feature_name=config.columns,
+                                 free_raw_data=False, **groups)
+    val_set = lightgbm.Dataset(val.features[:, columns], label=grades(val, config.grades), reference=train_set,
+                               **({"group": val.sizes} if groups else {}))
     history: list[dict] = []
 
     def gain_ratio(predictions, dataset):
@@ -325,8 +404,8 @@ def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: d
     best = booster.best_iteration or booster.current_iteration()
     booster = lightgbm.Booster(model_str=booster.model_to_string(num_iteration=best))
     training = asdict(config) | {"rounds": best}
-    ranker = ViewRanker(config.model, list(FEATURES), config.rays, scene, training, booster=booster)
-    scores = ranker.scores(val.features)
+    ranker = ViewRanker(config.model, config.columns, config.rays, scene, training, booster=booster)
+    scores = ranker.scores(val.features[:, columns])
     return FitReport(ranker, val.gain_ratio(scores), per_layout(val, scores), history, time.perf_counter() - started)
 
 
@@ -338,12 +417,14 @@ def fit_mlp(train: RankingData, val: RankingData, config: RankerConfig, scene: d
     started = time.perf_counter()
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
-    mean = train.features.astype(np.float64).mean(axis=0).astype(np.float32)
-    std = (train.features.astype(np.float64).std(axis=0) + 1e-6).astype(np.float32)
-    network = scorer(len(FEATURES), config.hidden)
+    columns = [FEATURES.index(name) for name in config.columns]
+    train_x, val_x = train.features[:, columns], val.features[:, columns]
+    mean = train_x.astype(np.float64).mean(axis=0).astype(np.float32)
+    std = (train_x.astype(np.float64).std(axis=0) + 1e-6).astype(np.float32)
+    network = scorer(len(columns), config.hidden)
     optimizer = torch.optim.Adam(network.parameters(), lr=config.learning_rate)
-    x, target, mask = _padded(train, mean, std, config.temperature)
-    val_x = torch.from_numpy((val.features - mean) / std)
+    x, target, mask = _padded(train, train_x, mean, std, config.temperature)
+    val_x = torch.from_numpy((val_x - mean) / std)
     rng = np.random.default_rng(config.seed)
     best_ratio, best_state, history, waited = -1.0, None, [], 0
     for epoch in range(1, config.epochs + 1):
@@ -370,27 +451,27 @@ def fit_mlp(train: RankingData, val: RankingData, config: RankerConfig, scene: d
     network.load_state_dict(best_state)
     network.eval()
     training = asdict(config) | {"epochs_run": len(history)}
-    ranker = ViewRanker(config.model, list(FEATURES), config.rays, scene, training, network=network, mean=mean,
+    ranker = ViewRanker(config.model, config.columns, config.rays, scene, training, network=network, mean=mean,
                         std=std)
-    scores = ranker.scores(val.features)
+    scores = ranker.scores(val.features[:, columns])
     return FitReport(ranker, val.gain_ratio(scores), per_layout(val, scores), history, time.perf_counter() - started)
 
 
-def _padded(data: RankingData, mean: np.ndarray, std: np.ndarray, temperature: float):
-    """(S, K, F) standardised features, (S, K) target distributions and (S, K) masks of the
-    states with something to gain, K their most rows."""
+def _padded(data: RankingData, features: np.ndarray, mean: np.ndarray, std: np.ndarray, temperature: float):
+    """(S, K, F) standardised ``features`` (M, F) of ``data``'s rows, (S, K) target distributions and
+    (S, K) masks of the states with something to gain, K their most rows."""
     import torch
 
     keep = np.flatnonzero((data.best > 0) & (data.sizes > 0))
     width = int(data.sizes[keep].max()) if len(keep) else 1
     starts = data.starts
-    x = np.zeros((len(keep), width, len(FEATURES)), dtype=np.float32)
+    x = np.zeros((len(keep), width, features.shape[1]), dtype=np.float32)
     target = np.zeros((len(keep), width), dtype=np.float32)
     mask = np.zeros((len(keep), width), dtype=bool)
     for k, s in enumerate(keep):
         rows = slice(starts[s], starts[s] + data.sizes[s])
         size = int(data.sizes[s])
-        x[k, :size] = (data.features[rows] - mean) / std
+        x[k, :size] = (features[rows] - mean) / std
         logits = data.gains[rows].astype(np.float64) / (temperature * data.best[s])
         weights = np.exp(logits - logits.max())
         target[k, :size] = weights / weights.sum()

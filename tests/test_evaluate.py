@@ -69,7 +69,7 @@ def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
 def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
     """An untrained scvp-net of the scene's views and a cover-gbm of a few trees on random rows: the
     cover planners' interface only."""
-    from nbvdata.viewfeatures import FEATURES
+    from nbvdata.viewfeatures import BASE
     from nbvtrain._lightgbm import lightgbm
     from nbvtrain.covermodel import CoverModel
     from nbvtrain.covernet import CoverNetConfig, network, save_covernet
@@ -78,7 +78,7 @@ def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
     views = view_sphere(config.views).positions
     save_covernet(folder / "covernet.pt", network(len(views), 2), CoverNetConfig(width=2), {"view_positions": views}, [])
     rng = np.random.default_rng(0)
-    rows = rng.random((200, len(FEATURES))).astype(np.float32)
+    rows = rng.random((200, len(BASE))).astype(np.float32)
     booster = lightgbm.train({"objective": "binary", "verbosity": -1, "num_threads": 1, "min_data_in_leaf": 5},
                              lightgbm.Dataset(rows, label=(rows[:, 0] > 0.5).astype(int)), num_boost_round=3)
     grid = config.scene_grid

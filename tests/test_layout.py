@@ -43,7 +43,7 @@ STAGES = (
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
                               "dataset", "checkpoint", "train", "baselines", "predict", "rl")),
-    ("planning", "nbvtrain", ("_lightgbm", "rankdata", "viewrank", "rankfit", "covermodel", "covernet", "release",
+    ("planning", "nbvtrain", ("_lightgbm", "trees", "rankdata", "viewrank", "rankfit", "covermodel", "covernet", "release",
                               "sensordata", "planners", "plan", "evaluate", "statistics", "benchmark", "benchmark_report", "policy", "cli",
                               "__main__")),
 )
@@ -166,9 +166,10 @@ def test_nbvdata_never_imports_torch_or_nbvtrain():
 def test_nbvtrain_registers_its_policy_provider():
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+
     points = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["nbvdata.policies"]
-    assert points == {"checkpoint": "nbvtrain.policy:CheckpointPolicy"}
-    module, name = points["checkpoint"].split(":")
-    assert re.search(rf"^class {name}\b", (ROOT / (module.replace(".", "/") + ".py")).read_text(), re.M)
+    assert points == {"checkpoint": "nbvtrain.policy:CheckpointPolicy", "viewrank": "nbvtrain.policy:RankerPolicy"}
+    for point in points.values():
+        module, name = point.split(":")
+        assert re.search(rf"^class {name}\b", (ROOT / (module.replace(".", "/") + ".py")).read_text(), re.M)
 
 
 def test_pytest_runs_without_the_dash_plugin_warning():

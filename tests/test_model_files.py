@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from nbvdata.config import SimConfig
-from nbvdata.viewfeatures import BUNDLE, FEATURES
+from nbvdata.viewfeatures import BASE, BUNDLE, FEATURES
 from nbvtrain._lightgbm import TEXT_KEY, lightgbm
 from nbvtrain.checkpoint import WEIGHTS_KEY, CheckpointError, load_checkpoint
 from nbvtrain.covermodel import CoverModel, load_cover_model
@@ -46,7 +46,7 @@ def _cut_model_text(path: Path) -> None:
 
 def _booster(rows: int = 400, label=None):
     rng = np.random.default_rng(0)
-    features = rng.random((rows, len(FEATURES))).astype(np.float32)
+    features = rng.random((rows, len(BASE))).astype(np.float32)
     labels = (features[:, 2] > 0.5).astype(int) if label is None else label(features)
     params = {"objective": "binary", "verbosity": -1, "num_threads": 1, "deterministic": True, "min_data_in_leaf": 5}
     return lightgbm.train(params, lightgbm.Dataset(features, label=labels), num_boost_round=5)

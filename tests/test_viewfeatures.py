@@ -19,14 +19,17 @@ def H(p):
     return -(p * math.log(p) + (1 - p) * math.log(1 - p))
 
 
-def _walk(grid: np.ndarray, rays: list[list[tuple[int, int, int]]]) -> dict[str, float]:
+def _walk(grid: np.ndarray, rays: list[list[tuple[int, int, int]]], shadow: np.ndarray | None = None,
+          surface: np.ndarray | None = None) -> dict[str, float]:
     """The sums of one view whose rays pass the given voxels (in order) of ``grid``."""
     n = grid.shape[0]
     flat = grid.astype(np.float32).reshape(-1)
     voxels = np.array([(i * n + j) * n + k for ray in rays for i, j, k in ray], dtype=np.int32)
     offsets = np.concatenate([[0], np.cumsum([len(ray) for ray in rays])]).astype(np.int64)
     sums = np.zeros((1, len(_SUMS)))
-    _view_sums(flat, _entropies(flat), occupied_distance(grid), offsets, voxels, len(rays), 5, 2, sums)
+    shadow = np.zeros(flat.size) if shadow is None else shadow.reshape(-1)
+    surface = np.zeros(flat.size) if surface is None else surface.reshape(-1)
+    _view_sums(flat, _entropies(flat), occupied_distance(grid), shadow, surface, offsets, voxels, len(rays), 5, 2, sums)
     return dict(zip(_SUMS, sums[0]))
 
 
@@ -49,7 +52,7 @@ def test_every_metric_by_hand():
         "near_unknown": 2,
         "entropy_hit": (h4 + 2 * ln2 + h7) + (2 * h4 + h97), "voxels_hit": 4 + 3,
         "area_occupied": 1, "area_occplane": 1, "area_unobserved": 1,  # ray 2 occupied after free; ray 1 occplane
-        "depth": 1 + 2,
+        "depth": 1 + 2, "proximity_shadow": 0, "expected_surface": 0,
     }
     for name, value in expected.items():
         assert sums[name] == pytest.approx(value, rel=1e-7, abs=1e-12), name  # p in float32
@@ -167,3 +170,60 @@ def test_a_grid_of_another_size_is_refused():
     bundle = RayBundle.build(views, CONFIG.scene_grid, CONFIG.sensor, 2, 2)
     with pytest.raises(ValueError, match="ray bundle was made for"):
         view_features(np.full((16, 16, 16), 0.5, dtype=np.float32), np.zeros((0, 3)), bundle)
+
+
+def test_the_shadow_and_the_expected_surface_by_hand():
+    """rpg's proximity count: unknown voxels k steps behind the first occupied voxel of an earlier
+    scan's ray weigh n - k (the fewest steps over the rays); a candidate's ray sums the weights of
+    the unknown voxels it passes before its own first occupied voxel. The expected surface: 1 -
+    prod(1 - P) over those unknown voxels."""
+    from nbvdata.viewfeatures import _shadow_tags
+
+    n = 4
+    grid = np.full((n, n, n), 0.5, dtype=np.float32)
+    grid[0, 1, 1] = 0.4
+    grid[1, 1, 1] = 0.7  # the scan's hit
+    grid[3, 1, 1] = 0.4  # measured free behind: no tag
+    flat = grid.reshape(-1)
+    index = lambda i, j, k: (i * n + j) * n + k  # noqa: E731
+    scan = np.array([index(i, 1, 1) for i in range(4)] + [index(0, 2, 2), index(1, 2, 2)], dtype=np.int32)
+    offsets = np.array([0, 4, 6], dtype=np.int64)  # a second ray that meets nothing: tags nothing
+    tags = np.full(flat.size, n, dtype=np.int32)
+    _shadow_tags(flat, offsets, scan, tags)
+    assert tags[index(2, 1, 1)] == 1 and tags[index(3, 1, 1)] == n  # (3,1,1) was measured free: no tag
+    assert (np.delete(tags, [index(2, 1, 1)]) == n).all()
+    shadow = np.where(flat == 0.5, (n - tags).astype(np.float64), 0.0)
+    assert shadow[index(2, 1, 1)] == 3 and shadow[index(3, 1, 1)] == 0
+    surface = np.zeros(flat.size)
+    surface[index(2, 1, 1)], surface[index(2, 2, 1)] = 0.5, 0.5
+    # a candidate from -y: through (2,0,1) unknown, (2,1,1) unknown and tagged, (2,2,1) unknown, (2,3,1) occupied
+    grid[2, 3, 1] = 0.971
+    sums = _walk(grid, [[(2, 0, 1), (2, 1, 1), (2, 2, 1), (2, 3, 1)]], shadow=shadow, surface=surface)
+    assert sums["proximity_shadow"] == 3 and sums["expected_surface"] == pytest.approx(1 - 0.5 * 0.5)
+
+
+def test_the_shadow_of_a_scan_lies_behind_what_it_hit():
+    """A box scanned from one view: its shadow is unknown space on the far side of the faces seen,
+    none in front of them, and a candidate looking from behind the box gains it, one from the front
+    none."""
+    from nbvdata.scene import Scene
+    from nbvdata.shapes import builtin_object
+    from nbvdata.viewfeatures import shadow_weights
+
+    obj = builtin_object("step_block", CONFIG.mesh)
+    scene = Scene.build(obj, CONFIG, np.random.default_rng(0), threads=1)
+    grid = scene.new_grid()
+    views = scene.views
+    front = int(np.argmax(views.unit_positions @ np.array([1.0, 0.0, 0.3])))
+    scene.integrate(grid, scene.scanner.scan(views[front]))
+    probabilities = grid.probabilities()
+    bundle = RayBundle.build(views, CONFIG.scene_grid, CONFIG.sensor, 16, 12)
+    weights = shadow_weights(probabilities, views.positions[[front]], bundle).reshape(probabilities.shape)
+    assert (weights[probabilities != 0.5] == 0).all() and (weights > 0).sum() > 100
+    centres = np.stack(np.meshgrid(*[np.arange(32) - 15.5] * 3, indexing="ij"), axis=-1)
+    toward = views.unit_positions[front]
+    assert (centres[weights > 0] @ toward).mean() < (centres[probabilities > 0.5] @ toward).mean()
+    features = view_features(probabilities, views.positions[[front]], bundle)
+    column = features[:, FEATURES.index("proximity_shadow")]
+    behind = int(np.argmin(views.unit_positions @ toward))
+    assert column[behind] > 0 and column[front] == 0
