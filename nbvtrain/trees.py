@@ -94,13 +94,17 @@ def compile_trees(text: str) -> TreeEnsemble | None:
 
 @numba.njit(cache=True)
 def _predict(x, feature, threshold, left, right, default_left, missing, nodes, leaves, values, out):
+    """Tree by tree (a tree's nodes stay in cache over the rows), each row's total added to in tree
+    order: the same sum as LightGBM's, row by row."""
     for row in range(x.shape[0]):
-        total = 0.0
-        for tree in range(len(nodes) - 1):
-            base = nodes[tree]
-            if nodes[tree + 1] == base:  # a single leaf
-                total += values[leaves[tree]]
-                continue
+        out[row] = 0.0
+    for tree in range(len(nodes) - 1):
+        base = nodes[tree]
+        if nodes[tree + 1] == base:  # a single leaf
+            for row in range(x.shape[0]):
+                out[row] += values[leaves[tree]]
+            continue
+        for row in range(x.shape[0]):
             node = 0
             while node >= 0:
                 at = base + node
@@ -114,5 +118,4 @@ def _predict(x, feature, threshold, left, right, default_left, missing, nodes, l
                     node = left[at]
                 else:
                     node = right[at]
-            total += values[leaves[tree] + ~node]
-        out[row] = total
+            out[row] += values[leaves[tree] + ~node]

@@ -190,3 +190,29 @@ def test_released_files_record_no_path_of_the_machine_that_made_them():
             texts = [path.read_text()]
         found = [match for text in texts for match in ABSOLUTE.findall(text)]
         assert not found, f"{path.name} records {found[:3]}"
+
+
+def test_compiled_trees_score_as_lightgbm_does_bit_for_bit():
+    """nbvtrain.trees against LightGBM itself: the released ranker's trees and a model with zero and
+    NaN missing types, on rows with zeros, NaN and values on the thresholds."""
+    from nbvtrain.trees import compile_trees
+
+    rng = np.random.default_rng(1)
+    head = json.loads((released_folder() / "viewrank.json").read_text())
+    booster = lightgbm.Booster(model_str=head["lightgbm"])
+    rows = (rng.random((400, booster.num_feature())) * rng.choice([0, 1, 5, 100], (400, booster.num_feature())))
+    rows = rows.astype(np.float32)
+    rows[rng.random(rows.shape) < 0.05] = 0
+    rows[rng.random(rows.shape) < 0.02] = np.nan
+    trees = compile_trees(head["lightgbm"])
+    assert np.array_equal(trees.raw(rows), booster.predict(rows, num_threads=1, raw_score=True))
+    features = rng.random((300, 4)).astype(np.float32)
+    features[rng.random(features.shape) < 0.2] = 0
+    features[rng.random(features.shape) < 0.1] = np.nan
+    for zero_as_missing in (False, True):
+        params = {"objective": "regression", "verbosity": -1, "num_threads": 1, "min_data_in_leaf": 3,
+                  "zero_as_missing": zero_as_missing, "deterministic": True}
+        model = lightgbm.train(params, lightgbm.Dataset(features, label=np.nan_to_num(features[:, 0]) * 3 + 1),
+                               num_boost_round=15)
+        trees = compile_trees(model.model_to_string())
+        assert np.array_equal(trees.raw(features), model.predict(features, num_threads=1, raw_score=True))
