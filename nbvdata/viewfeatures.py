@@ -222,17 +222,19 @@ def shadow_weights(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBu
 
 
 def view_sums(probabilities: np.ndarray, bundle: RayBundle, scanned: np.ndarray | None = None,
-              surface: np.ndarray | None = None) -> np.ndarray:
+              surface: np.ndarray | None = None, shadow: np.ndarray | None = None) -> np.ndarray:
     """(V, len(_SUMS)) float64: the walk's sums per view for a (n, n, n) grid (module docstring);
     ``scanned`` (P, 3): the scans' positions (``proximity_shadow``; None: none), ``surface`` (n, n, n)
-    a prior's P(surface) of each voxel (``expected_surface``; None: 0)."""
+    a prior's P(surface) of each voxel (``expected_surface``; None: 0); ``shadow``: the scans'
+    ``shadow_weights`` where the caller has them already."""
     probabilities = np.ascontiguousarray(probabilities, dtype=np.float32)
     if probabilities.shape != (bundle.size,) * 3:
         raise ValueError(f"a grid of shape {probabilities.shape}; the ray bundle was made for {(bundle.size,) * 3}")
     flat = probabilities.reshape(-1)
     sums = np.zeros((len(bundle.views), len(_SUMS)))
-    shadow = shadow_weights(probabilities, scanned, bundle) if scanned is not None and len(scanned) else \
-        np.zeros(flat.size)
+    if shadow is None:
+        shadow = shadow_weights(probabilities, scanned, bundle) if scanned is not None and len(scanned) else \
+            np.zeros(flat.size)
     prior = np.zeros(flat.size) if surface is None else np.ascontiguousarray(surface, dtype=np.float64).reshape(-1)
     _view_sums(flat, _entropies(flat), occupied_distance(probabilities), shadow, prior, bundle.offsets,
                bundle.voxels, bundle.rays, PROXIMITY, NEAR, sums)
@@ -240,12 +242,13 @@ def view_sums(probabilities: np.ndarray, bundle: RayBundle, scanned: np.ndarray 
 
 
 def view_features(probabilities: np.ndarray, scanned: np.ndarray, bundle: RayBundle,
-                  surface: np.ndarray | None = None) -> np.ndarray:
+                  surface: np.ndarray | None = None, shadow: np.ndarray | None = None) -> np.ndarray:
     """(V, F) float32, the columns ``FEATURES``, of every view of ``bundle`` at the state of the
     (n, n, n) grid ``probabilities`` (authors' encoding, 0.5 = unknown) after scans from the
     positions ``scanned`` (P, 3) (object-centred, any radius, any order; P may be 0); ``surface``
-    (n, n, n): a surface prior's P(surface) per voxel, for ``expected_surface`` (None: 0)."""
-    sums = view_sums(probabilities, bundle, scanned, surface)
+    (n, n, n): a surface prior's P(surface) per voxel, for ``expected_surface`` (None: 0);
+    ``shadow``: the scans' ``shadow_weights`` where the caller has them already."""
+    sums = view_sums(probabilities, bundle, scanned, surface, shadow)
     columns = dict(zip(_SUMS, sums.T))
     rays = float(bundle.rays)
     met = columns["occupied_first"] + columns["unknown_first"]

@@ -44,8 +44,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _fit_ranker(args)
     if args.model in COVER_MODELS:
         return _fit_cover(args)
+    if args.model == SURFACE_MODEL:
+        return _fit_surface(args)
     for flag, of in (("width", "scvp-net"), ("train_states", "scvp-net"), ("features", "viewrank-gbm|viewrank-mlp"),
-                     ("label", "viewrank-gbm")):
+                     ("label", "viewrank-gbm"), ("surface_prior", "viewrank-gbm|viewrank-mlp")):
         if getattr(args, flag, None) is not None:
             raise ConfigError(f"--{flag.replace('_', '-')}: an option of --model {of} only; leave it out")
     from nbvtrain.config import TrainConfig
@@ -98,12 +100,37 @@ def _fit_ranker(args: argparse.Namespace) -> int:
     cache = None if args.feature_cache == Path("none") else (args.feature_cache or DEFAULT_CACHE)
     started = time.perf_counter()
     metrics = fit_ranker(args.shards, config, out, target=args.target, root=args.root, workers=args.workers,
-                         cache=cache, progress=progress)
+                         cache=cache, progress=progress, prior=args.surface_prior)
     print(f"nbvtrain fit: {describe(metrics)}; {out / metrics['file']} ({time.perf_counter() - started:.0f} s)")
     return 0
 
 
 COVER_MODELS = ("cover-gbm", "scvp-net")  # nbvtrain.covermodel, nbvtrain.covernet
+SURFACE_MODEL = "surface-gbm"  # nbvtrain.surfaceprior
+
+
+def _fit_surface(args: argparse.Namespace) -> int:
+    """``fit --model surface-gbm``: a surface prior on shards with the meshes' surface voxels."""
+    from nbvtrain.surfaceprior import SurfacePriorConfig, fit_surface_prior
+
+    allowed = ("seed", "trees", "lr", "threads", "workers")
+    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
+                 "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "epochs", "batch_size",
+                 "width", "train_states", "feature_cache", "features", "label", "surface_prior"):
+        if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
+            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
+    if args.split == "random":
+        raise ConfigError(f"--split random: {args.model} is validated on whole meshes (the mesh split); leave --split out")
+    settings = {key: getattr(args, attr) for attr, key in (("seed", "seed"), ("trees", "trees"), ("lr", "learning_rate"),
+                                                           ("threads", "threads")) if getattr(args, attr) is not None}
+    out = args.out or Path("runs") / args.model
+    started = time.perf_counter()
+    metrics = fit_surface_prior(args.shards, SurfacePriorConfig(**settings), out, root=args.root, workers=args.workers)
+    figures = metrics["val"]["all"]
+    print(f"nbvtrain fit: surface-gbm: validation precision {figures['precision']:.3f}, recall {figures['recall']:.3f} "
+          f"of the hidden surface voxels on {plural(metrics['val_states'], 'state')}; {out / 'surface.json'} "
+          f"({time.perf_counter() - started:.0f} s)")
+    return 0
 
 
 def _fit_cover(args: argparse.Namespace) -> int:
@@ -112,7 +139,7 @@ def _fit_cover(args: argparse.Namespace) -> int:
                "scvp-net": ("seed", "epochs", "batch_size", "lr", "threads", "width", "train_states")}[args.model]
     for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
                  "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "trees", "epochs",
-                 "batch_size", "width", "train_states", "feature_cache", "features", "label"):
+                 "batch_size", "width", "train_states", "feature_cache", "features", "label", "surface_prior"):
         if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
             raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
     if args.split == "random":
@@ -668,12 +695,14 @@ def _add_fit(sub, released: dict[str, str]) -> None:
                      "configs/train.yaml lists)")
     fit.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one setting, e.g. --set dropout=0.3 (repeatable)")
-    fit.add_argument("--model", choices=list(MODELS) + list(RANKERS) + list(COVER_MODELS), help="network (default "
+    fit.add_argument("--model", choices=list(MODELS) + list(RANKERS) + list(COVER_MODELS) + [SURFACE_MODEL],
+                     help="network (default "
                      "nbvnet-4-5), or a ranker of candidate views from per-view features: viewrank-gbm (LightGBM "
                      "lambdarank) or viewrank-mlp (a small torch scorer), trained on manifests' mesh splits "
                      "(docs/viewrank.md); or a set-cover model on shards with covers: cover-gbm (each view's membership "
                      "from the ranker's features, any view set) or scvp-net (SCVP's network, one view set) "
-                     "(docs/setcover.md)")
+                     "(docs/setcover.md); or surface-gbm, a prior of the surface hidden in a partial grid, on shards "
+                     "made with state.surface (docs/viewrank.md)")
     fit.add_argument("--epochs", type=positive_int, help="total epochs (default 600)")
     fit.add_argument("--batch-size", type=positive_int, help="samples per step (default 250)")
     fit.add_argument("--lr", type=positive_float, help="Adam learning rate (default 1e-4)")
@@ -708,6 +737,8 @@ def _add_fit(sub, released: dict[str, str]) -> None:
     fit.add_argument("--trees", type=positive_int, help="viewrank-gbm: boosting rounds at most (default 600)")
     fit.add_argument("--features", type=_names, help="rankers: the columns read, groups (base, metrics, shadow, "
                      "surface) or column names, comma-separated (default base: the first ranker's; docs/viewrank.md)")
+    fit.add_argument("--surface-prior", type=Path, help="rankers of --features ...,surface: the surface prior "
+                     "(surface.json of --model surface-gbm) whose expected surface they read; the ranker carries it")
     fit.add_argument("--label", choices=["graded", "scone", "vin"], help="viewrank-gbm: lambdarank on graded gains "
                      "(default), SCONE's L1 on gain / the state's mean, or VIN-NBV's stage-normalised ordinal bins")
     fit.add_argument("--workers", type=positive_int, default=2, help="rankers: processes computing the features "

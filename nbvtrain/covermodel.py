@@ -33,8 +33,7 @@ from nbvdata.shards import Shard, ShardError, has_covers
 from nbvdata.views import ViewSet
 from nbvdata.viewfeatures import BASE, BUNDLE, FEATURES, view_features
 from nbvtrain.checkpoint import CheckpointError
-from nbvtrain.rankdata import RankingData, bundle_for
-from nbvtrain.viewrank import check_grid, check_rows
+from nbvtrain.rankdata import RankingData, bundle_for, check_grid, check_rows
 
 FORMAT = "nbvtrain-cover"
 FORMAT_VERSION = 1
@@ -282,10 +281,10 @@ def load_cover_model(path: str | Path) -> CoverModel:
 def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root: Path | None = None,
                     workers: int = 2, cache: Path | None = None, progress: bool = False) -> dict:
     """Train ``cover-gbm`` on the covers of ``items`` (manifests or shard folders, any layouts; the
-    split of ``nbvtrain.rankfit.sources_parts``) into ``out``: ``cover.json`` and ``metrics.json``
+    split of ``nbvtrain.rankdata.sources_parts``) into ``out``: ``cover.json`` and ``metrics.json``
     (validation quality overall, per layout and per scan step, every threshold's); returns the metrics."""
     from nbvtrain._lightgbm import lightgbm
-    from nbvtrain.rankfit import _finite, _scene, sources_parts
+    from nbvtrain.rankdata import finite, grid_scene, sources_parts
 
     started = time.perf_counter()
     train_parts, val_parts, records = sources_parts(items, root, seed=config.seed)
@@ -304,7 +303,7 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
                              valid_names=["val"], callbacks=[lightgbm.early_stopping(config.patience, verbose=False)])
     best = booster.best_iteration or booster.current_iteration()
     booster = lightgbm.Booster(model_str=booster.model_to_string(num_iteration=best))
-    model = CoverModel(booster, config.rays, _scene(train_parts[0].path), 0.5,
+    model = CoverModel(booster, config.rays, grid_scene(train_parts[0].path), 0.5,
                        asdict(config) | {"rounds": best, "sources": records,
                                          "view_sets": sorted(set(train.rows.layouts.tolist()))})
     probabilities = model.probabilities(val.rows.features[:, columns])
@@ -326,5 +325,5 @@ def fit_cover_model(items: list[Path], config: CoverModelConfig, out: Path, root
                "train_states": len(train.rows), "train_rows": int(len(train.member)), "val_states": len(val.rows),
                "val_rows": int(len(val.member)), "feature_seconds": round(featured - started, 1),
                "model_seconds": round(time.perf_counter() - featured, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
+    (out / "metrics.json").write_text(json.dumps(finite(metrics), indent=1, allow_nan=False) + "\n")
     return metrics

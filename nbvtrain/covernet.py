@@ -153,12 +153,12 @@ def set_quality(probabilities: np.ndarray, covers: np.ndarray) -> dict:
 def fit_covernet(items: list[Path], config: CoverNetConfig, out: Path, root: Path | None = None,
                  progress: bool = False) -> dict:
     """Train ``scvp-net`` on the covers of ``items`` (manifests or shard folders of one layout; the
-    split of ``nbvtrain.rankfit.sources_parts``) into ``out``: ``covernet.pt`` (the epoch with the
+    split of ``nbvtrain.rankdata.sources_parts``) into ``out``: ``covernet.pt`` (the epoch with the
     lowest validation loss), ``metrics.json``, ``history.csv``; returns the metrics."""
     import torch
     from tqdm import tqdm
 
-    from nbvtrain.rankfit import _finite, sources_parts
+    from nbvtrain.rankdata import finite, sources_parts
 
     started = time.perf_counter()
     torch.manual_seed(config.seed)
@@ -204,7 +204,7 @@ def fit_covernet(items: list[Path], config: CoverNetConfig, out: Path, root: Pat
                "val_by_step": {int(step): set_quality(probabilities[val_steps == step], val_covers[val_steps == step])
                                for step in np.unique(val_steps)[:10]},
                "seconds": round(time.perf_counter() - started, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
+    (out / "metrics.json").write_text(json.dumps(finite(metrics), indent=1, allow_nan=False) + "\n")
     with (out / "history.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(history[0]))
         writer.writeheader()

@@ -12,6 +12,11 @@ Two labels per row: its gain (the observable coverage it would add) and its *val
 gain when the view's overlap passes the shard's ``oracle.min_overlap``, else 0 (the ground
 truth's rule: the next-best-view is the valid view with the largest gain). ``RankingData.gains``
 holds one of them (``target``: "valid" or "all"), ``RankingData.labelled`` gives the other.
+
+Also what every model of per-view rows shares (rankers, cover models, the surface prior, SCVP's
+network): ``sources_parts`` (manifests and folders split by one mesh split into ``Part`` s),
+``check_rows`` and ``check_grid`` (their settings and the grid they were trained on),
+``grid_scene`` and ``finite`` (what their files and metrics record).
 """
 
 from __future__ import annotations
@@ -25,10 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata.config import ConfigError, SimConfig, from_dict
-from nbvdata.files import sha256_file
-from nbvdata.shards import Shard, ShardError, view_state
+from nbvdata.files import sha256_file, shown_path
+from nbvdata.manifest import mesh_split, open_verified
+from nbvdata.shards import Shard, ShardError, shard_files, view_state
 from nbvdata.views import ViewSet, farthest_view, look_at_rotations
-from nbvdata.viewfeatures import BUNDLE, FEATURES, RayBundle, view_features
+from nbvdata.viewfeatures import BUNDLE, FEATURES, RayBundle, shadow_weights, view_features
 
 _BUNDLES: dict[tuple, RayBundle] = {}
 
@@ -148,9 +154,11 @@ def layout_label(config: SimConfig) -> str:
 
 
 def shard_rows(path: Path, rays: tuple[int, int] = BUNDLE, sample: int = 0, seed: int = 0,
-               states: np.ndarray | None = None) -> RankingData:
+               states: np.ndarray | None = None, prior=None) -> RankingData:
     """The ranking rows of one shard's states (all, or ``states``: sorted sample indices); see the
-    module docstring. ShardError naming the shard when it lacks what ranking needs."""
+    module docstring; ``prior``: a surface prior (``nbvtrain.surfaceprior``) for the
+    ``expected_surface`` columns (None: 0). ShardError naming the shard when it lacks what ranking
+    needs."""
     with Shard(path) as shard:
         for name in ("gains", "overlaps", "last_view", "mesh_id"):
             if not shard.has(name):
@@ -189,7 +197,9 @@ def shard_rows(path: Path, rays: tuple[int, int] = BUNDLE, sample: int = 0, seed
         if sample and len(free) > sample:
             rows = _sample_views(free, valid[k, free] + gains[k, free], sample, seed, mesh_ids[k], int(run[i]),
                                  int(step[i]))
-        state_features = view_features(grids[k], scanned, bundle)
+        shadow = shadow_weights(grids[k], scanned, bundle)
+        surface = prior.probabilities(grids[k], shadow) if prior is not None else None
+        state_features = view_features(grids[k], scanned, bundle, surface=surface, shadow=shadow)
         features.append(state_features[rows])
         labels.append(valid[k, rows])
         others.append(gains[k, rows])
@@ -231,29 +241,149 @@ def _sample_views(free: np.ndarray, gains: np.ndarray, sample: int, seed: int, m
 
 
 def cache_path(cache: Path, digest: str, rays: tuple[int, int], sample: int, seed: int,
-               states: np.ndarray | None) -> Path:
-    """Where ``cached_rows`` keeps a shard's rows: named by its sha256 and every argument."""
+               states: np.ndarray | None, prior=None) -> Path:
+    """Where ``cached_rows`` keeps a shard's rows: named by its sha256 and every argument (a surface
+    prior by the sha256 of its model text)."""
     chosen = "all" if states is None else hashlib.sha256(np.asarray(states, dtype=np.int64).tobytes()).hexdigest()[:12]
-    return Path(cache) / f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}-f{len(FEATURES)}-v3.npz"
+    surface = "" if prior is None else f"-p{prior_digest(prior)[:12]}"
+    return Path(cache) / f"{digest[:24]}-{rays[0]}x{rays[1]}-s{sample}-seed{seed}-{chosen}{surface}-f{len(FEATURES)}-v3.npz"
+
+
+def prior_digest(prior) -> str:
+    """The sha256 of a surface prior's model text: what its probabilities are a function of."""
+    from nbvtrain._lightgbm import TEXT_KEY
+
+    return prior.to_dict()[TEXT_KEY]
 
 
 def cached_rows(path: Path, cache: Path | None, rays: tuple[int, int], sample: int, seed: int,
-                states: np.ndarray | None = None, digest: str | None = None) -> RankingData:
+                states: np.ndarray | None = None, digest: str | None = None, prior=None) -> RankingData:
     """``shard_rows``, kept in ``cache`` (a folder; None: no cache) under the shard's sha256
     (``digest``, e.g. from its manifest; else computed) and the arguments, so that a second fit
     on the same shards reads them instead of walking every grid again."""
     if cache is None:
-        return shard_rows(path, rays, sample, seed, states)
-    target = cache_path(cache, digest or sha256_file(path), rays, sample, seed, states)
+        return shard_rows(path, rays, sample, seed, states, prior)
+    target = cache_path(cache, digest or sha256_file(path), rays, sample, seed, states, prior)
     if target.is_file():
         try:
             with np.load(target, allow_pickle=False) as stored:
                 return RankingData(**{key: stored[key] for key in RankingData.__dataclass_fields__})
         except (OSError, KeyError, ValueError):
             target.unlink(missing_ok=True)  # a damaged cache entry is made again
-    rows = shard_rows(path, rays, sample, seed, states)
+    rows = shard_rows(path, rays, sample, seed, states, prior)
     target.parent.mkdir(parents=True, exist_ok=True)
     partial = target.with_name(target.name + ".partial.npz")
     np.savez(partial, **{key: getattr(rows, key) for key in RankingData.__dataclass_fields__})
     partial.replace(target)
     return rows
+
+
+def check_rows(rays: tuple[int, int], sample: int) -> None:
+    """ConfigError unless ``rays`` is (width, height) >= 1 and ``sample`` 0 or >= 4 rows per state:
+    the settings of the per-view rows a model of features trains on (a ranker, ``nbvtrain.covermodel``)."""
+    if len(rays) != 2 or min(rays) < 1:
+        raise ConfigError(f"rays={rays}: give WIDTHxHEIGHT rays per view, each >= 1")
+    if sample < 0 or 0 < sample < 4:
+        raise ConfigError(f"sample={sample}: give 0 (every row) or at least 4 rows per state")
+
+
+def check_grid(scene: dict, config: SimConfig, where: str, what: str) -> None:
+    """ConfigError when ``config``'s grid is not ``scene``'s ({grid_size, grid_extent}), the one ``what``
+    (a ranker, a cover model) was trained on."""
+    grid = config.scene_grid
+    size, extent = scene.get("grid_size"), scene.get("grid_extent")
+    if size is not None and (size != grid.size or abs(extent - grid.extent) > 1e-6):
+        raise ConfigError(f"{where}: {what} trained on {size}^3 grids of {extent:.4f} m, this run's are "
+                          f"{grid.size}^3 of {grid.extent:.4f} m: run with the grid settings it was trained with")
+
+
+@dataclass(frozen=True)
+class Part:
+    """The states of one shard a part uses: ``states`` (sorted sample indices); ``digest`` its sha256 when known."""
+
+    path: Path
+    states: np.ndarray
+    digest: str | None = None
+
+
+def sources_parts(items: list[Path], root: Path | None = None, val_fraction: float = 0.2,
+                  seed: int = 0) -> tuple[list[Part], list[Part], list[dict]]:
+    """(train parts, val parts, a record per source) of manifests and shard folders (a manifest's
+    record: its name, version and sha256; a folder's: its path as ``shown_path`` gives it - no
+    local roots, for the model files that carry the records).
+
+    One split holds for every source, so that no object trains under one view set and validates
+    under another: the mesh split of the first manifest (its val meshes validate, its test meshes
+    are left out, every other mesh trains), or without a manifest ``nbvdata.manifest.mesh_split``
+    of all the folders' meshes."""
+    if not items:
+        raise ConfigError("no data given: nbvtrain fit MANIFEST.json [MANIFEST.json ...] --model viewrank-gbm")
+    manifests = [Path(item) for item in items if Path(item).suffix == ".json"]
+    if root is not None and len(manifests) != 1:
+        raise ConfigError("--root: give it with one manifest (each of several finds its shards at the root it records)")
+    shards: list[tuple[Path, str | None]] = []
+    records = []
+    held: dict[str, set] = {}
+    for item in manifests:
+        published = open_verified(item, root)
+        if not held:
+            mesh = published.content["splits"].get("mesh", {})
+            if not isinstance(mesh, dict) or "unavailable" in mesh:
+                raise ConfigError(f"{item}: no mesh split ({mesh.get('unavailable', 'none recorded')}): a ranker "
+                                  "validates on whole meshes")
+            held = {part: set(mesh.get(part, {}).get("meshes", [])) for part in ("val", "test")}
+            records.append({"split_from": published.label})
+        shards += [(path, entry["sha256"]) for entry, path in zip(published.content["shards"], published.shard_paths)]
+        records.append({key: published.identity[key] for key in ("name", "version", "sha256")})
+    folders = [item for item in items if Path(item).suffix != ".json"]
+    shards += [(path, None) for path in (shard_files(folders) if folders else [])]
+    ids = []
+    for path, _ in shards:
+        with Shard(path) as shard:
+            if not shard.has("mesh_id"):
+                raise ShardError(f"{path}: no mesh ids (imported data): a ranker validates on whole meshes")
+            ids.append(shard["mesh_id"].astype(str))
+    if not held:
+        parts = mesh_split(np.concatenate(ids) if ids else np.zeros(0, dtype=str), val_fraction, 0.0, seed)
+        if isinstance(parts, str):
+            raise ShardError(f"the shards of {', '.join(map(str, folders))}: {parts}; give more meshes")
+        held = {"val": set(parts["val"].tolist()), "test": set()}
+        records.append({"folders": [shown_path(folder) for folder in folders], "val_fraction": val_fraction,
+                        "seed": seed})
+    elif folders:
+        records.append({"folders": [shown_path(folder) for folder in folders]})
+    train, val = [], []
+    for (path, digest), mesh_ids in zip(shards, ids):
+        is_val = np.isin(mesh_ids, list(held["val"]))
+        is_train = ~is_val & ~np.isin(mesh_ids, list(held["test"]))
+        if is_train.any():
+            train.append(Part(path, np.flatnonzero(is_train), digest))
+        if is_val.any():
+            val.append(Part(path, np.flatnonzero(is_val), digest))
+    records.append({"val_meshes": len(held["val"]), "test_meshes_left_out": len(held["test"])})
+    if not train or not val:
+        raise ConfigError("a ranker needs training and validation meshes: the split left "
+                          f"{'no training' if not train else 'no validation'} states")
+    return train, val, records
+
+
+def grid_scene(path: Path) -> dict:
+    """The grid of a shard's scene: {grid_size, grid_extent} (metres)."""
+    from nbvdata.config import SimConfig, from_dict
+
+    with Shard(path) as shard:
+        grid = from_dict(SimConfig, shard.info.config or {}).scene_grid
+    return {"grid_size": grid.size, "grid_extent": round(float(grid.extent), 9)}
+
+
+def finite(value):
+    """``value`` with every NaN or infinite float as None (JSON has no NaN): a gain ratio of no state."""
+    if isinstance(value, dict):
+        return {key: finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite(item) for item in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value

@@ -2,7 +2,7 @@
 
 Sources are manifests (``manifests/NAME-X.Y.Z.json``, each verified by size) or folders of
 shards; several at once mix their view sets - the point of a ranker of any view set. One mesh
-split holds for all of them (``sources_parts``): the first manifest's (its val meshes validate,
+split holds for all of them (``nbvtrain.rankdata.sources_parts``): the first manifest's (its val meshes validate,
 its test meshes are never read), else ``nbvdata.manifest.mesh_split`` of the folders' meshes.
 
 The features of every state are computed in ``workers`` processes (one shard at a time, each
@@ -18,103 +18,35 @@ The run folder ``out`` holds the model (``viewrank.json`` or ``viewrank.pt``), `
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from nbvdata.config import ConfigError
-from nbvdata.files import shown_path
-from nbvdata.manifest import mesh_split, open_verified
-from nbvdata.shards import Shard, ShardError, shard_files
 from nbvdata.text import plural
-from nbvtrain.rankdata import RankingData, cache_path, cached_rows, concatenate
+from nbvdata.viewfeatures import FEATURE_GROUPS
+from nbvtrain.rankdata import (Part, RankingData, cache_path, cached_rows, concatenate, finite, grid_scene,
+                               sources_parts)
 from nbvtrain.viewrank import RankerConfig, baseline_ratios, fit_gbm, fit_mlp
 
 DEFAULT_CACHE = Path("runs") / "viewrank-features"
 
 
-@dataclass(frozen=True)
-class Part:
-    """The states of one shard a part uses: ``states`` (sorted sample indices); ``digest`` its sha256 when known."""
-
-    path: Path
-    states: np.ndarray
-    digest: str | None = None
-
-
-def sources_parts(items: list[Path], root: Path | None = None, val_fraction: float = 0.2,
-                  seed: int = 0) -> tuple[list[Part], list[Part], list[dict]]:
-    """(train parts, val parts, a record per source) of manifests and shard folders (a manifest's
-    record: its name, version and sha256; a folder's: its path as ``shown_path`` gives it - no
-    local roots, for the model files that carry the records).
-
-    One split holds for every source, so that no object trains under one view set and validates
-    under another: the mesh split of the first manifest (its val meshes validate, its test meshes
-    are left out, every other mesh trains), or without a manifest ``nbvdata.manifest.mesh_split``
-    of all the folders' meshes."""
-    if not items:
-        raise ConfigError("no data given: nbvtrain fit MANIFEST.json [MANIFEST.json ...] --model viewrank-gbm")
-    manifests = [Path(item) for item in items if Path(item).suffix == ".json"]
-    if root is not None and len(manifests) != 1:
-        raise ConfigError("--root: give it with one manifest (each of several finds its shards at the root it records)")
-    shards: list[tuple[Path, str | None]] = []
-    records = []
-    held: dict[str, set] = {}
-    for item in manifests:
-        published = open_verified(item, root)
-        if not held:
-            mesh = published.content["splits"].get("mesh", {})
-            if not isinstance(mesh, dict) or "unavailable" in mesh:
-                raise ConfigError(f"{item}: no mesh split ({mesh.get('unavailable', 'none recorded')}): a ranker "
-                                  "validates on whole meshes")
-            held = {part: set(mesh.get(part, {}).get("meshes", [])) for part in ("val", "test")}
-            records.append({"split_from": published.label})
-        shards += [(path, entry["sha256"]) for entry, path in zip(published.content["shards"], published.shard_paths)]
-        records.append({key: published.identity[key] for key in ("name", "version", "sha256")})
-    folders = [item for item in items if Path(item).suffix != ".json"]
-    shards += [(path, None) for path in (shard_files(folders) if folders else [])]
-    ids = []
-    for path, _ in shards:
-        with Shard(path) as shard:
-            if not shard.has("mesh_id"):
-                raise ShardError(f"{path}: no mesh ids (imported data): a ranker validates on whole meshes")
-            ids.append(shard["mesh_id"].astype(str))
-    if not held:
-        parts = mesh_split(np.concatenate(ids) if ids else np.zeros(0, dtype=str), val_fraction, 0.0, seed)
-        if isinstance(parts, str):
-            raise ShardError(f"the shards of {', '.join(map(str, folders))}: {parts}; give more meshes")
-        held = {"val": set(parts["val"].tolist()), "test": set()}
-        records.append({"folders": [shown_path(folder) for folder in folders], "val_fraction": val_fraction,
-                        "seed": seed})
-    elif folders:
-        records.append({"folders": [shown_path(folder) for folder in folders]})
-    train, val = [], []
-    for (path, digest), mesh_ids in zip(shards, ids):
-        is_val = np.isin(mesh_ids, list(held["val"]))
-        is_train = ~is_val & ~np.isin(mesh_ids, list(held["test"]))
-        if is_train.any():
-            train.append(Part(path, np.flatnonzero(is_train), digest))
-        if is_val.any():
-            val.append(Part(path, np.flatnonzero(is_val), digest))
-    records.append({"val_meshes": len(held["val"]), "test_meshes_left_out": len(held["test"])})
-    if not train or not val:
-        raise ConfigError("a ranker needs training and validation meshes: the split left "
-                          f"{'no training' if not train else 'no validation'} states")
-    return train, val, records
-
-
 def part_rows(parts: list[Part], config: RankerConfig, sample: int, cache: Path | None, workers: int,
-              progress: bool, what: str) -> RankingData:
-    """The ranking rows of ``parts``, shard by shard in ``workers`` processes, in the order of ``parts``."""
+              progress: bool, what: str, prior: Path | None = None) -> RankingData:
+    """The ranking rows of ``parts``, shard by shard in ``workers`` processes, in the order of ``parts``
+    (``prior``: a surface prior's file, for the ``expected_surface`` columns)."""
     from joblib import Parallel, delayed
     from tqdm import tqdm
 
     def rows(part: Part) -> RankingData:
-        return cached_rows(part.path, cache, config.rays, sample, config.seed, part.states, part.digest)
+        return cached_rows(part.path, cache, config.rays, sample, config.seed, part.states, part.digest,
+                           _prior(prior))
 
     bar = tqdm(total=len(parts), desc=f"features ({what})", unit="shard", disable=not progress, dynamic_ncols=True)
     if workers <= 1:
@@ -125,40 +57,59 @@ def part_rows(parts: list[Part], config: RankerConfig, sample: int, cache: Path 
     else:
         out = []
         for result in Parallel(n_jobs=workers, backend="loky", return_as="generator")(
-                delayed(_rows_one_thread)(part, cache, config.rays, sample, config.seed) for part in parts):
+                delayed(_rows_one_thread)(part, cache, config.rays, sample, config.seed, prior) for part in parts):
             out.append(result)
             bar.update()
     bar.close()
     return concatenate(out)
 
 
-def _cached(part: Part, cache: Path | None, config: RankerConfig, sample: int) -> bool:
+def _cached(part: Part, cache: Path | None, config: RankerConfig, sample: int, prior: Path | None = None) -> bool:
     """Whether ``part``'s rows lie in the feature cache already (then they are read, not computed)."""
-    return cache is not None and part.digest is not None and cache_path(cache, part.digest, config.rays, sample,
-                                                                        config.seed, part.states).is_file()
+    return cache is not None and part.digest is not None and cache_path(
+        cache, part.digest, config.rays, sample, config.seed, part.states, _prior(prior)).is_file()
 
 
-def _rows_one_thread(part: Part, cache: Path | None, rays: tuple[int, int], sample: int, seed: int) -> RankingData:
+def _rows_one_thread(part: Part, cache: Path | None, rays: tuple[int, int], sample: int, seed: int,
+                     prior: Path | None = None) -> RankingData:
     import numba
 
     numba.set_num_threads(1)
-    return cached_rows(part.path, cache, rays, sample, seed, part.states, part.digest)
+    return cached_rows(part.path, cache, rays, sample, seed, part.states, part.digest, _prior(prior))
+
+
+@functools.lru_cache(maxsize=2)
+def _prior(path: Path | None):
+    """The surface prior of ``path``, loaded once per process (None: none)."""
+    if path is None:
+        return None
+    from nbvtrain.surfaceprior import load_surface_prior
+
+    return load_surface_prior(path)
 
 
 def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str = "valid", root: Path | None = None,
-               workers: int = 2, cache: Path | None = DEFAULT_CACHE, progress: bool = False) -> dict:
+               workers: int = 2, cache: Path | None = DEFAULT_CACHE, progress: bool = False,
+               prior: Path | None = None) -> dict:
     """Train a ranker on ``items`` (module docstring) into the run folder ``out``; returns the
-    metrics written to ``out/metrics.json``."""
+    metrics written to ``out/metrics.json``. ``prior``: the surface prior (``surface.json``) a
+    ranker of the ``surface`` group reads, carried in its file."""
+    reads_surface = any(name in FEATURE_GROUPS["surface"] for name in config.columns)
+    if reads_surface != (prior is not None):
+        raise ConfigError("--features surface and --surface-prior FILE go together: the expected surface is the "
+                          "prior's" if reads_surface else "--surface-prior: only a ranker of the surface group reads "
+                          "it (--features ...,surface)")
     started = time.perf_counter()
     train_parts, val_parts, records = sources_parts(items, root, seed=config.seed)
     out.mkdir(parents=True, exist_ok=True)
-    hits = sum(_cached(part, cache, config, sample) for parts, sample in ((train_parts, config.sample), (val_parts, 0))
-               for part in parts)
-    train = part_rows(train_parts, config, config.sample, cache, workers, progress, "train").labelled(target)
-    val = part_rows(val_parts, config, 0, cache, workers, progress, "val").labelled(target)
+    hits = sum(_cached(part, cache, config, sample, prior) for parts, sample in ((train_parts, config.sample),
+                                                                                (val_parts, 0)) for part in parts)
+    train = part_rows(train_parts, config, config.sample, cache, workers, progress, "train", prior).labelled(target)
+    val = part_rows(val_parts, config, 0, cache, workers, progress, "val", prior).labelled(target)
     featured = time.perf_counter()
-    scene = _scene(train_parts[0].path)
+    scene = grid_scene(train_parts[0].path)
     report = (fit_gbm if config.model == "viewrank-gbm" else fit_mlp)(train, val, config, scene)
+    report.ranker.prior = _prior(prior)
     path = out / ("viewrank.json" if config.model == "viewrank-gbm" else "viewrank.pt")
     report.ranker.training |= {"target": target, "sources": records}
     report.ranker.save(path)
@@ -171,7 +122,7 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
                "val_rows": int(len(val.gains)), "feature_seconds": round(featured - started, 1),
                "feature_cache_hits": [hits, len(train_parts) + len(val_parts)],
                "model_seconds": round(report.seconds, 1), "sources": records}
-    (out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, allow_nan=False) + "\n")
+    (out / "metrics.json").write_text(json.dumps(finite(metrics), indent=1, allow_nan=False) + "\n")
     (out / "config.yaml").write_text(yaml.safe_dump({"ranker": _plain(asdict(config)), "target": target,
                                                      "sources": [str(item) for item in items]}, sort_keys=False))
     with (out / "history.csv").open("w", newline="") as handle:
@@ -224,28 +175,6 @@ def diagnosis(data: RankingData, scores: np.ndarray | None = None) -> dict:
             "by_layout": {layout: row(data.layouts == layout) for layout in sorted(set(data.layouts.tolist()))},
             "features": {name: data.gain_ratio(signs[name] * column) for name, column in columns.items()},
             "signs": signs}
-
-
-def _scene(path: Path) -> dict:
-    """The grid of a shard's scene: {grid_size, grid_extent} (metres)."""
-    from nbvdata.config import SimConfig, from_dict
-
-    with Shard(path) as shard:
-        grid = from_dict(SimConfig, shard.info.config or {}).scene_grid
-    return {"grid_size": grid.size, "grid_extent": round(float(grid.extent), 9)}
-
-
-def _finite(value):
-    """``value`` with every NaN or infinite float as None (JSON has no NaN): a gain ratio of no state."""
-    if isinstance(value, dict):
-        return {key: _finite(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(item) for item in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
 
 
 def _plain(value):

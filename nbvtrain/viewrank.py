@@ -36,9 +36,9 @@ import numpy as np
 from nbvdata.config import ConfigError, SimConfig
 from nbvdata.files import write_atomic
 from nbvdata.views import ViewSet
-from nbvdata.viewfeatures import BUNDLE, FEATURE_GROUPS, FEATURES, view_features
+from nbvdata.viewfeatures import BUNDLE, FEATURE_GROUPS, FEATURES, shadow_weights, view_features
 from nbvtrain.checkpoint import CheckpointError, check_weights
-from nbvtrain.rankdata import RankingData, bundle_for
+from nbvtrain.rankdata import RankingData, bundle_for, check_grid, check_rows
 
 KINDS = ("viewrank-gbm", "viewrank-mlp")
 LABELS = ("graded", "scone", "vin")
@@ -117,25 +117,6 @@ def feature_columns(spec) -> list[str]:
     return [name for name in FEATURES if name in chosen]
 
 
-def check_rows(rays: tuple[int, int], sample: int) -> None:
-    """ConfigError unless ``rays`` is (width, height) >= 1 and ``sample`` 0 or >= 4 rows per state:
-    the settings of the per-view rows a model of features trains on (a ranker, ``nbvtrain.covermodel``)."""
-    if len(rays) != 2 or min(rays) < 1:
-        raise ConfigError(f"rays={rays}: give WIDTHxHEIGHT rays per view, each >= 1")
-    if sample < 0 or 0 < sample < 4:
-        raise ConfigError(f"sample={sample}: give 0 (every row) or at least 4 rows per state")
-
-
-def check_grid(scene: dict, config: SimConfig, where: str, what: str) -> None:
-    """ConfigError when ``config``'s grid is not ``scene``'s ({grid_size, grid_extent}), the one ``what``
-    (a ranker, a cover model) was trained on."""
-    grid = config.scene_grid
-    size, extent = scene.get("grid_size"), scene.get("grid_extent")
-    if size is not None and (size != grid.size or abs(extent - grid.extent) > 1e-6):
-        raise ConfigError(f"{where}: {what} trained on {size}^3 grids of {extent:.4f} m, this run's are "
-                          f"{grid.size}^3 of {grid.extent:.4f} m: run with the grid settings it was trained with")
-
-
 class ViewRanker:
     """A trained ranker: ``scores(features) -> (V,)``, higher is better; ``view_scores`` from a state.
 
@@ -153,6 +134,7 @@ class ViewRanker:
         self.booster, self.network, self.mean, self.std = booster, network, mean, std
         self.columns = np.array([FEATURES.index(name) for name in self.features], dtype=np.int64)
         self.trees = compile_trees(booster.model_to_string()) if booster is not None else None
+        self.prior = None  # the surface prior (nbvtrain.surfaceprior) of a ranker that reads expected_surface
         self.path: Path | None = None
 
     @property
@@ -182,12 +164,17 @@ class ViewRanker:
                     config: SimConfig) -> np.ndarray:
         """(V,) scores of ``views`` at the state of the (n, n, n) grid after scans from ``scanned``
         (P, 3) positions; ``config``: the scene's grid and sensor."""
-        return self.scores(view_features(probabilities, scanned, bundle_for(views, config, self.rays))[:, self.columns])
+        bundle = bundle_for(views, config, self.rays)
+        shadow = shadow_weights(probabilities, scanned, bundle)
+        surface = self.prior.probabilities(probabilities, shadow) if self.prior is not None else None
+        return self.scores(view_features(probabilities, scanned, bundle, surface, shadow)[:, self.columns])
 
     def save(self, path: Path) -> None:
         """Write the model file (module docstring), whole or not at all."""
         head = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": self.kind, "features": self.features,
                 "rays": list(self.rays), "scene": self.scene, "training": self.training}
+        if self.prior is not None:  # carried whole: the file is all a ranker needs
+            head["surface_prior"] = json.dumps(self.prior.to_dict(), allow_nan=False)
         if self.booster is not None:
             from nbvtrain._lightgbm import TEXT_KEY, text_digest
 
@@ -268,6 +255,16 @@ def load_ranker(path: str | Path) -> ViewRanker:
         network.eval()
         ranker = ViewRanker(state["kind"], state["features"], tuple(state["rays"]), state["scene"], state["training"],
                             network=network, mean=state["mean"].numpy(), std=state["std"].numpy())
+    if "expected_surface" in ranker.features or "expected_surface_rel" in ranker.features:
+        from nbvtrain.surfaceprior import surface_prior_from
+
+        carried = (head if path.suffix.lower() == ".json" else state).get("surface_prior")
+        if not isinstance(carried, str):
+            raise CheckpointError(f"{path}: a ranker of the expected surface without its surface prior; {USE_FIT}")
+        try:
+            ranker.prior = surface_prior_from(json.loads(carried), path)
+        except json.JSONDecodeError:
+            raise CheckpointError(f"{path}: its surface prior is not JSON; {USE_FIT}") from None
     ranker.path = path
     return ranker
 

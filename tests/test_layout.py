@@ -43,7 +43,7 @@ STAGES = (
                              "render", "cli", "__main__")),
     ("learning", "nbvtrain", ("models", "scores", "metrics", "trained_scene", "scene", "config", "training_data", "data",
                               "dataset", "checkpoint", "train", "baselines", "predict", "rl")),
-    ("planning", "nbvtrain", ("_lightgbm", "trees", "rankdata", "viewrank", "rankfit", "covermodel", "covernet", "release",
+    ("planning", "nbvtrain", ("_lightgbm", "trees", "rankdata", "viewrank", "surfaceprior", "rankfit", "covermodel", "covernet", "release",
                               "sensordata", "planners", "plan", "evaluate", "statistics", "benchmark", "benchmark_report", "policy", "cli",
                               "__main__")),
 )

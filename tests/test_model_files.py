@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from nbvdata.config import SimConfig
-from nbvdata.viewfeatures import BASE, BUNDLE, FEATURES
+from nbvdata.viewfeatures import BASE, BUNDLE
 from nbvtrain._lightgbm import TEXT_KEY, lightgbm
 from nbvtrain.checkpoint import WEIGHTS_KEY, CheckpointError, load_checkpoint
 from nbvtrain.covermodel import CoverModel, load_cover_model
@@ -117,8 +117,8 @@ def test_an_unchecked_file_of_before_still_loads(tmp_path, caplog):
 
 def _mlp_file(path: Path) -> Path:
     torch.manual_seed(0)
-    width = len(FEATURES)
-    ViewRanker("viewrank-mlp", list(FEATURES), BUNDLE, SCENE, {"hidden": [8]}, network=scorer(width, (8,)),
+    width = len(BASE)
+    ViewRanker("viewrank-mlp", list(BASE), BUNDLE, SCENE, {"hidden": [8]}, network=scorer(width, (8,)),
                mean=np.zeros(width, dtype=np.float32), std=np.ones(width, dtype=np.float32)).save(path)
     return path
 

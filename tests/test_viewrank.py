@@ -270,3 +270,52 @@ def test_generate_follows_a_ranker_and_labels_every_state(shards, rankers, tmp_p
                          "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "add --policy-provider viewrank" in err[0]
+
+
+@pytest.fixture(scope="module")
+def surface_shards(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("surface") / "shards"
+    assert nbvdata_main(["generate", "--config", str(SMOKE), "--out", str(out), "--runs-per-mesh", "3",
+                         "--explore", "0.3", "--set", "state.surface=true", "--no-progress"]) == 0
+    return out
+
+
+def test_a_surface_prior_and_a_ranker_that_carries_it(surface_shards, tmp_path, capsys):
+    """surface-gbm learns P(surface) of unknown voxels from the shards' surface voxels; a ranker of
+    the surface group reads its expected surface and carries the prior in its own file."""
+    from nbvdata.shards import Shard, view_state
+    from nbvdata.viewfeatures import shadow_weights
+    from nbvtrain.rankdata import bundle_for
+    from nbvtrain.surfaceprior import load_surface_prior
+
+    prior_run, ranker_run = tmp_path / "surface", tmp_path / "ranker"
+    assert nbvtrain_main(["fit", str(surface_shards), "--model", "surface-gbm", "--trees", "20", "--workers", "1",
+                          "--out", str(prior_run)]) == 0
+    metrics = json.loads((prior_run / "metrics.json").read_text())
+    assert 0 <= metrics["val"]["all"]["recall"] <= 1 and 0 < metrics["far_rate"] < 1
+    prior = load_surface_prior(prior_run / "surface.json")
+    config = load_config(SimConfig, SMOKE, [])
+    path = sorted(surface_shards.glob("*.h5"))[0]
+    with Shard(path) as shard:
+        grid, positions = shard.grids(1), shard["view_positions"]
+        taken = view_state(shard["run"], shard["step"], shard["last_view"], len(positions))[1]
+    views = view_sphere(config.views)
+    shadow = shadow_weights(grid, positions[taken], bundle_for(views, config))
+    probabilities = prior.probabilities(grid, shadow)
+    assert ((probabilities >= 0) & (probabilities <= 1)).all() and (probabilities[grid != 0.5] == 0).all()
+    assert nbvtrain_main(["fit", str(surface_shards), "--model", "viewrank-gbm", "--features", "base,surface",
+                          "--out", str(tmp_path / "bad"), *FAST, "--trees", "5"]) == 2
+    assert "--surface-prior FILE" in capsys.readouterr().err
+    assert nbvtrain_main(["fit", str(surface_shards), "--model", "viewrank-gbm", "--features", "base,surface",
+                          "--surface-prior", str(prior_run / "surface.json"), "--out", str(ranker_run),
+                          "--feature-cache", str(tmp_path / "cache"), *FAST, "--trees", "5"]) == 0
+    ranker = load_ranker(ranker_run / "viewrank.json")
+    assert ranker.prior is not None and "expected_surface" in ranker.features
+    scores = ranker.view_scores(grid, positions[taken], views, config)
+    assert scores.shape == (len(views),) and np.isfinite(scores).all()
+    head = json.loads((ranker_run / "viewrank.json").read_text())
+    carried = json.loads(head["surface_prior"])
+    carried["lightgbm"] = carried["lightgbm"].replace("Tree=1", "Tree=9", 1)
+    (tmp_path / "damaged.json").write_text(json.dumps(head | {"surface_prior": json.dumps(carried)}))
+    with pytest.raises(CheckpointError, match="damaged"):
+        load_ranker(tmp_path / "damaged.json")
