@@ -154,8 +154,11 @@ def _add(summary: Summary, info: ShardInfo, config: str, policy: str | None, vie
 
 
 def _fitted(text: str, width: int) -> str:
-    """``text`` in ``width`` characters: whole, or '...' and its end (a path's end tells meshes apart)."""
-    return text if len(text) <= width else "..." + text[-(width - 3):]
+    """``text`` in ``width`` characters: whole, cut at the end, or for a path '...' and its end (a
+    path's end tells meshes apart)."""
+    if len(text) <= width:
+        return text
+    return "..." + text[-(width - 3):] if "/" in text else text[:width]
 
 
 def format_summary(summary: Summary, top: int = 10) -> str:
