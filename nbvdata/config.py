@@ -283,7 +283,7 @@ class SimConfig:
 # them: ``dataset_dict`` leaves them out at that default, so the same data keeps the same
 # recorded settings (config.yaml, every shard's ``config`` attribute) and the same bytes.
 NEUTRAL_DEFAULTS = {("views", "reach"): "whole", ("episode", "explore"): 0.0, ("episode", "oracle_mix"): 0.0,
-                    ("state", "points"): 0, ("oracle", "cover"): False,
+                    ("state", "points"): 0, ("state", "surface"): False, ("oracle", "cover"): False,
                     ("oracle", "cover_node_limit"): OracleConfig.cover_node_limit}
 
 
