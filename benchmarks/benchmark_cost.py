@@ -24,10 +24,10 @@ from collections import defaultdict
 from contextlib import contextmanager
 from pathlib import Path
 
-from nbvdata.sources import mesh_sources
-from nbvdata.views import view_sphere
-from nbvtrain import benchmark as bench
-from nbvtrain import evaluate as evaluation
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.sources import mesh_sources
+from nbvtrain.evaluation import benchmark as bench
+from nbvtrain.evaluation import evaluate as evaluation
 from nbvtrain.planners import build_planners, default_planners
 
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "bench"
@@ -72,8 +72,8 @@ def wall_clock(sources: list, workers: int, total: int) -> dict[str, float]:
 @contextmanager
 def timers(spent: dict[str, float]):
     """Wrap the benchmark's phases (module docstring) with timers adding into ``spent``."""
-    from nbvdata.episode import Reconstruction
-    from nbvdata.scene import Scene
+    from nbvdata.simulation.episode import Reconstruction
+    from nbvdata.simulation.scene import Scene
 
     patched = []
     active: set[str] = set()  # a phase inside itself (scan calling scan_pose) counts once

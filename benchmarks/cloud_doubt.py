@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.config import SimConfig, ViewConfig
-from nbvdata.mesh import load_mesh
-from nbvdata.sensor import MeshScanner, plane_distances
-from nbvdata.views import view_sphere
+from nbvdata.core.config import SimConfig, ViewConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.sensor import MeshScanner, plane_distances
 
 
 def nudge(rays: np.ndarray, ulps: int, rng: np.random.Generator) -> np.ndarray:

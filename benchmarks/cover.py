@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import generate
-from nbvdata.sources import mesh_sources
-from nbvdata.shards import Shard
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import generate
+from nbvdata.schema.shards import Shard
+from nbvdata.simulation.sources import mesh_sources
 
 TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "train"
 

@@ -19,14 +19,14 @@ import numba
 import numpy as np
 import torch
 
-from nbvdata.config import SimConfig, from_dict
-from nbvdata.episode import scene_rng
-from nbvdata.manifest import open_verified
-from nbvdata.oracle import popcount
-from nbvdata.scene import Scene
-from nbvdata.shards import Shard, view_state
-from nbvdata.sources import part_sources
-from nbvdata.views import ViewSet, look_at_rotations
+from nbvdata.core.config import SimConfig, from_dict
+from nbvdata.core.views import ViewSet, look_at_rotations
+from nbvdata.schema.manifest import open_verified
+from nbvdata.schema.shards import Shard, view_state
+from nbvdata.simulation.episode import scene_rng
+from nbvdata.simulation.oracle import popcount
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sources import part_sources
 from nbvtrain.planners import CoverModelPlanner, Observation, SCVPNetPlanner, robot_radius
 
 

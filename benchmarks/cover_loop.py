@@ -23,10 +23,10 @@ import numba
 import numpy as np
 import torch
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.sources import SceneCache, builtin_sources, mesh_sources
-from nbvdata.views import view_sphere
-from nbvtrain.evaluate import reconstruct
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.sources import SceneCache, builtin_sources, mesh_sources
+from nbvtrain.evaluation.evaluate import reconstruct
 from nbvtrain.planners import SCVPNetPlanner, robot_radius
 
 

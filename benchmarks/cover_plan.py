@@ -21,13 +21,13 @@ from pathlib import Path
 import numba
 import numpy as np
 import torch
-
-from nbvdata.config import SimConfig, from_dict
-from nbvdata.shards import Shard, view_state
-from nbvdata.views import ViewSet, look_at_rotations
-from nbvtrain.planners import CoverModelPlanner, Observation, RankerPlanner, SCVPNetPlanner, robot_radius
-from nbvtrain.release import released_ranker
 from viewfeatures import median_ms  # benchmarks/viewfeatures.py, beside this script
+
+from nbvdata.core.config import SimConfig, from_dict
+from nbvdata.core.views import ViewSet, look_at_rotations
+from nbvdata.schema.shards import Shard, view_state
+from nbvtrain.planners import CoverModelPlanner, Observation, RankerPlanner, SCVPNetPlanner, robot_radius
+from nbvtrain.planners.released import released_ranker
 
 
 def observations(folder: Path, count: int) -> tuple[list[Observation], SimConfig, ViewSet]:

@@ -34,13 +34,13 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 
-from nbvdata.config import SimConfig, load_config
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import plan_units, run_unit
 from nbvdata.env import ReconstructEnv
-from nbvdata.episode import start_view
-from nbvdata.generate import plan_units, run_unit
-from nbvdata.sources import builtin_sources, mesh_sources
-from nbvdata.mesh import find_meshes
-from nbvdata.shards import Shard
+from nbvdata.schema.shards import Shard
+from nbvdata.simulation.episode import start_view
+from nbvdata.simulation.mesh import find_meshes
+from nbvdata.simulation.sources import builtin_sources, mesh_sources
 
 TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "train"
 

@@ -25,16 +25,16 @@ import numba
 import numpy as np
 import torch
 
-from nbvdata.config import SimConfig
-from nbvdata.episode import Reconstruction, scene_rng
-from nbvdata.mesh import load_mesh
-from nbvdata.scene import Scene
-from nbvdata.shapes import builtin_object
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import build_model
+from nbvdata.core.config import SimConfig
+from nbvdata.simulation.episode import Reconstruction, scene_rng
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import builtin_object
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import build_model
+from nbvtrain.networks.train import save_training_state
 from nbvtrain.planners import InfoGainPlanner, LearnedPlanner, Observation, OraclePlanner, RandomPlanner
-from nbvtrain.release import NoReleasedModel, released_checkpoint
-from nbvtrain.train import save_training_state
+from nbvtrain.planners.released import NoReleasedModel, released_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from reference_infogain import sampled_scores  # noqa: E402  (the tests' slow reference)

@@ -18,9 +18,9 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import Report, generate
-from nbvdata.sources import builtin_sources, mesh_sources
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import Report, generate
+from nbvdata.simulation.sources import builtin_sources, mesh_sources
 
 PAPER_TRAIN = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "paper_train.txt"
 

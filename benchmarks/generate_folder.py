@@ -38,9 +38,9 @@ import json, sys
 from collections import defaultdict
 from pathlib import Path
 import nbvdata
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import generate
-from nbvdata.sources import mesh_sources
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import generate
+from nbvdata.simulation.sources import mesh_sources
 
 meshes, out, limit, overrides = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3]), sys.argv[4:]
 sources, failures = mesh_sources(meshes)

@@ -15,7 +15,7 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
-from nbvdata.authors import import_legacy
+from nbvdata.datasets.authors import import_legacy
 
 DATASET = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "nbv-regression-2019"
 

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import scene_rng
-from nbvdata.mesh import load_mesh
-from nbvdata.oracle import pack_bits
-from nbvdata.scene import Scene
-from nbvdata.shapes import builtin_object
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.simulation.episode import scene_rng
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.oracle import pack_bits
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import builtin_object
 
 SHARED_MESHES = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 MESHES = ["train/toy_duck__trimesh_khronos.ply", "train/drill__ycb_urdfmodels.obj",

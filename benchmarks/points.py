@@ -1,7 +1,7 @@
 """Benchmark: what the partial point clouds (``state.points``) cost, and the FPS that makes them.
 
 1. Farthest-point sampling of real accumulated clouds (the hits of 1 to 10 scans of the first
-   meshes): ``nbvdata.cloud.farthest_points`` against the plain O(N M) loop it must equal index for
+   meshes): ``nbvdata.core.cloud.farthest_points`` against the plain O(N M) loop it must equal index for
    index, and against the FPS of other packages when they are installed (fpsample, open3d), with
    whether each gives the same indices.
 2. ``nbvdata generate`` on a folder of meshes with the default settings and with
@@ -50,11 +50,11 @@ def _best(function, repeats: int = 5) -> float:
 def fps_table(meshes: Path, points: int) -> None:
     import numba
 
-    from nbvdata.cloud import ScannedCloud, farthest_points, farthest_points_reference
-    from nbvdata.config import SimConfig
-    from nbvdata.sources import mesh_sources
-    from nbvdata.sensor import MeshScanner
-    from nbvdata.views import view_sphere
+    from nbvdata.core.cloud import ScannedCloud, farthest_points, farthest_points_reference
+    from nbvdata.core.config import SimConfig
+    from nbvdata.core.views import view_sphere
+    from nbvdata.simulation.sensor import MeshScanner
+    from nbvdata.simulation.sources import mesh_sources
 
     numba.set_num_threads(1)
     others = {}
@@ -67,7 +67,7 @@ def fps_table(meshes: Path, points: int) -> None:
     except ImportError:
         print("fpsample: not installed (pip install fpsample: its latest release is a source package that needs "
               "a Rust toolchain; 0.3.3 has wheels for CPython 3.10-3.12)")
-    from nbvdata._open3d import open3d as o3d
+    from nbvdata.simulation._open3d import open3d as o3d
 
     def open3d_fps(cloud: np.ndarray, n: int) -> np.ndarray:
         cloud64 = cloud.astype(np.float64)
@@ -84,7 +84,7 @@ def fps_table(meshes: Path, points: int) -> None:
     farthest_points(np.random.default_rng(0).random((100, 3)).astype(np.float32), 10)  # compile
     farthest_points_reference(np.random.default_rng(0).random((100, 3)).astype(np.float32), 10)
     print(f"\nFarthest-point sampling to {points} points, 1 thread, best of 5 (ms); '=' same indices as the plain loop")
-    names = ["nbvdata.cloud", "plain loop (reference)", *others]
+    names = ["nbvdata.core.cloud", "plain loop (reference)", *others]
     print(f"{'mesh':24s} {'scans':>5s} {'points':>7s} " + " ".join(f"{name[:22]:>24s}" for name in names))
     for source in sources[:3]:
         scanner = MeshScanner(source.load(config.mesh).mesh, config.sensor, threads=1)
@@ -97,7 +97,7 @@ def fps_table(meshes: Path, points: int) -> None:
             reference = farthest_points_reference(scanned, points)
             cells = []
             for name in names:
-                function = {"nbvdata.cloud": farthest_points,
+                function = {"nbvdata.core.cloud": farthest_points,
                             "plain loop (reference)": farthest_points_reference}.get(name) or others[name]
                 same = "=" if np.array_equal(np.asarray(function(scanned, points)), reference) else "x"
                 cells.append(f"{_best(lambda: function(scanned, points), 2 if 'plain' in name else 5):22.2f} {same}")

@@ -1,4 +1,4 @@
-"""What ``nbvtrain plan``'s pose checks (``nbvtrain.sensordata.check_pose``) catch: simulated scans
+"""What ``nbvtrain plan``'s pose checks (``nbvtrain.robot.sensordata.check_pose``) catch: simulated scans
 of the built-in shapes from views all round, each given once with its camera-to-world pose (must
 be accepted) and once with the inverse, world-to-camera, pose (should be refused), in two worlds
 (object at the origin; object on a table at (0.6, -0.2, 0.75), turned), for clouds as a robot may
@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nbvdata.config import SimConfig, ViewConfig
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import view_sphere
-from nbvtrain.sensordata import SensorDataError, SensorScan, check_pose, hidden_share, pixel_ray_share, read_cloud
+from nbvdata.core.config import SimConfig, ViewConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
+from nbvtrain.robot.sensordata import SensorDataError, SensorScan, check_pose, hidden_share, pixel_ray_share, read_cloud
 
 KINDS = ("hits", "noisy", "far points", "thinned", "half image", "voxel-filtered")
 TABLE = np.eye(4)

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbvdata.views import Pose
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import MODELS, build_model
-from nbvtrain.predict import Predictor
-from nbvtrain.train import save_training_state
+from nbvdata.core.views import Pose
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import MODELS, build_model
+from nbvtrain.networks.predict import Predictor
+from nbvtrain.networks.train import save_training_state
 
 
 def median_ms(call, grids: np.ndarray, repeats: int) -> float:

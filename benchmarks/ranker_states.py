@@ -3,7 +3,7 @@ the states it reaches itself, beside ``farthest``'s choice on those same states 
 oracle's path (issue 63's diagnosis of a DAgger round; the closed loop's AUC decides, this says why).
 
 For every mesh and start (``nbvtrain benchmark``'s start views of the protocol), each ranker plays
-its own reconstruction; at every state the exact scores (``nbvdata.oracle``) give the valid gain of
+its own reconstruction; at every state the exact scores (``nbvdata.simulation.oracle``) give the valid gain of
 the view it chooses over the best valid gain (1: the oracle's choice; a state with no valid view
 adding anything is left out), and the same for ``farthest``'s choice there. Then the oracle plays,
 and each ranker's choice on the oracle's states is scored the same way. The figures are means over
@@ -23,14 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.episode import run_seed, scene_rng
-from nbvdata.scene import Scene
-from nbvdata.sources import mesh_sources, part_sources
-from nbvdata.views import Pose, farthest_view, scanned_views
-from nbvtrain.benchmark import load_protocol, protocol_config, start_views_of
-from nbvtrain.evaluate import limit_threads, mesh_cache, reconstruct
+from nbvdata.core.views import Pose, farthest_view
+from nbvdata.simulation.episode import run_seed, scene_rng
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sources import mesh_sources, part_sources
+from nbvtrain.evaluation.benchmark import load_protocol, protocol_config, start_views_of
+from nbvtrain.evaluation.evaluate import limit_threads, mesh_cache, reconstruct
 from nbvtrain.planners import Observation, OraclePlanner, Planner, RankerPlanner
-
 
 TARGET = "valid"  # --target: "valid" gains (the overlap rule's, the labels') or "all" (coverage alone)
 

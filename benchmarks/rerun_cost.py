@@ -1,4 +1,4 @@
-"""Benchmark: what recording a 10-scan run in Rerun (``nbvdata.rerun``) adds to the run.
+"""Benchmark: what recording a 10-scan run in Rerun (``nbvdata.view.rerun``) adds to the run.
 
 For each built-in shape at the default settings (500 views, 176 x 144 sensor, 16,384 reference
 points, 10 scans; ``episode.min_gain=0`` so that every run takes its 10 scans where any view still
@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import ViewCache, run_reconstruction, run_seed, scene_rng, start_view
-from nbvdata.rerun import Recording, log_record
-from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.simulation.episode import ViewCache, run_reconstruction, run_seed, scene_rng, start_view
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.view.rerun import Recording, log_record
 
 TARGET_SECONDS = 1.0
 

@@ -19,18 +19,18 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from nbvdata.config import load_config, SimConfig
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources
-from nbvdata.policy import PolicySource
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import generate
+from nbvdata.simulation.policy import PolicySource
+from nbvdata.simulation.sources import builtin_sources
 
 
 def _checkpoint(name: str, folder: Path) -> Path:
     import torch
 
-    from nbvtrain.config import TrainConfig
-    from nbvtrain.models import build_model
-    from nbvtrain.train import save_training_state
+    from nbvtrain.networks.config import TrainConfig
+    from nbvtrain.networks.models import build_model
+    from nbvtrain.networks.train import save_training_state
 
     torch.manual_seed(0)
     model = build_model(name)

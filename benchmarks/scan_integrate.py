@@ -2,7 +2,7 @@
 another git revision and against OctoMap.
 
 For each mesh, scans from random views of the default hemisphere are cast (open3d) and
-integrated (nbvdata.grid) by this checkout's code and by ``--baseline``'s (its sensor.py and
+integrated (nbvdata.simulation.grid) by this checkout's code and by ``--baseline``'s (its sensor.py and
 grid.py, loaded from git), alternating scan by scan; both must give the same points and the
 same voxel updates. The first ``--octomap-scans`` scans then go through OctoMap's
 insertPointCloud (pyoctomap) in a second pass of the same process. Times are medians.
@@ -29,12 +29,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from nbvdata.config import SimConfig
-from nbvdata.grid import OccupancyGrid
-from nbvdata.mesh import load_mesh
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.views import view_sphere
+from nbvdata.core.config import SimConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.grid import OccupancyGrid
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_MESHES = ROOT.parent / "shared" / "meshes"
@@ -94,7 +94,7 @@ def main() -> None:
         old_sensor = _baseline_module(args.baseline, "sensor", Path(folder))
         old_grid = _baseline_module(args.baseline, "grid", Path(folder))
         # warm-up: compile the kernels of both before timing
-        for sensor, grid in ((old_sensor, old_grid), (sys.modules["nbvdata.sensor"], sys.modules["nbvdata.grid"])):
+        for sensor, grid in ((old_sensor, old_grid), (sys.modules["nbvdata.simulation.sensor"], sys.modules["nbvdata.simulation.grid"])):
             scan = sensor.MeshScanner(builtin_object("mug").mesh, config.sensor).scan(views[0])
             grid.OccupancyGrid(config.scene_grid).integrate(scan, config.sensor.far)
 

@@ -19,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import nbvdata.generate as job
-from nbvdata.sources import builtin_sources
-from nbvdata.config import SimConfig, load_config
+import nbvdata.datasets.generate as job
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.simulation.sources import builtin_sources
 
 
 def _job(config: SimConfig, sources: list, cache_size: int) -> tuple[float, float, dict[str, str]]:

@@ -2,7 +2,7 @@
 
 Shards of the built-in shapes at the default settings (the README's dataset; ``--points N``
 adds N-point clouds) are made once; then each shard's arrays are written, alternately, as
-``nbvdata.shards.write_shard`` writes them (a Fletcher-32 checksum on every chunk, the per-shard
+``nbvdata.schema.shards.write_shard`` writes them (a Fletcher-32 checksum on every chunk, the per-shard
 arrays one chunk each, the attributes' sha256) and as shards were written before issue 50 (no
 checksums, per-shard arrays contiguous), ``--repeats`` times. Printed: total bytes of each, the
 median seconds to write all shards, and to read every dataset of every shard whole (what
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import h5py
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources
-from nbvdata.shards import ATTRIBUTES_DIGEST, PER_SAMPLE, PER_SHARD, SCHEMA_VERSION, Shard, write_shard
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import generate
+from nbvdata.schema.shards import ATTRIBUTES_DIGEST, PER_SAMPLE, PER_SHARD, SCHEMA_VERSION, Shard, write_shard
+from nbvdata.simulation.sources import builtin_sources
 
 
 def _without_checksums(path: Path, arrays: dict, attrs: dict) -> None:

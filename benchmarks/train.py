@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbvdata.shards import shard_files
-from nbvtrain.training_data import load_shards, load_view_states, rotate_quarter_turns, to_grids
-from nbvtrain.models import MODELS, build_model
-from nbvtrain.scores import score_loss
+from nbvdata.schema.shards import shard_files
+from nbvtrain.networks.models import MODELS, build_model
+from nbvtrain.networks.scores import score_loss
+from nbvtrain.networks.training_data import load_shards, load_view_states, rotate_quarter_turns, to_grids
 
 VARIANTS = ("float32", "bf16 autocast", "channels-last")
 

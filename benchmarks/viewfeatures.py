@@ -28,10 +28,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from nbvdata.config import SimConfig
-from nbvdata.shards import Shard, view_state
-from nbvdata.views import ViewSet, view_sphere
-from nbvdata.viewfeatures import BUNDLE, FEATURES, METRIC_BUNDLE, METRICS, RayBundle, view_features
+from nbvdata.core.config import SimConfig
+from nbvdata.core.views import ViewSet, view_sphere
+from nbvdata.schema.shards import Shard, view_state
+from nbvdata.simulation.viewfeatures import BUNDLE, FEATURES, METRIC_BUNDLE, METRICS, RayBundle, view_features
 from nbvtrain.planners import InfoGainPlanner
 
 
@@ -110,7 +110,7 @@ def main() -> None:
         mark = {BUNDLE: " (the ranker's)", METRIC_BUNDLE: " (the metric planners')"}.get((width, height), "")
         print(f"| every feature, 500 views{mark} | {width} x {height} | {ms:.1f} | {ms / baseline:.2f} |")
     if args.ranker is not None:
-        from nbvtrain.viewrank import load_ranker
+        from nbvtrain.ranking.viewrank import load_ranker
 
         ranker = load_ranker(args.ranker)
         ms = median_ms(lambda state: ranker.view_scores(state[0], state[1], views, config), sample, args.repeats)

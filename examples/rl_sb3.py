@@ -9,13 +9,13 @@ The first needs the meshes of train-meshes 1.2.0 (``--meshes``, default ../share
 says so in one line without them; the second runs on what a clone has, the built-in shapes (4 to
 learn on, 1 to choose on), in 3 CPU minutes.
 
-The policy is the score network (``nbvtrain.rl.ScoreFeatures``, ``nbvscore-fc3``) started from
+The policy is the score network (``nbvtrain.networks.rl.ScoreFeatures``, ``nbvscore-fc3``) started from
 the released weights (``--init new``: from new ones) with a linear head over its 500 scores,
 started at the identity: before any step it is the released score network's choice. Stages,
 each from the one before, each's actor saved in ``--out`` as ``STAGE.pt``:
 
 1. ``clone``: ``--episodes`` episodes of the oracle's (``info["nbv"]``) on the training meshes,
-   cloned (cross-entropy of the masked logits with the oracle's view, ``nbvtrain.rl.clone``);
+   cloned (cross-entropy of the masked logits with the oracle's view, ``nbvtrain.networks.rl.clone``);
 2. ``dagger``: ``--dagger-rounds`` rounds of the learner's own episodes, labelled by the oracle,
    added and cloned again;
 3. ``ppo-g{GAMMA}``: for every ``--gammas`` discount, MaskablePPO from the DAgger actor (reward:
@@ -64,16 +64,16 @@ try:
 except ImportError:
     sys.exit('examples/rl_sb3.py needs sb3-contrib and stable-baselines3: pip install -e ".[rl]"')
 
-from nbvdata.config import SimConfig
+from nbvdata.core.config import SimConfig
+from nbvdata.core.errors import UserError
+from nbvdata.core.text import plural
+from nbvdata.core.views import view_sphere
 from nbvdata.env import ReconstructEnv
-from nbvdata.errors import UserError
-from nbvdata.manifest import load_manifest
-from nbvdata.sources import find_part_meshes
-from nbvdata.text import plural
-from nbvdata.views import view_sphere
-from nbvtrain.benchmark import auc
-from nbvtrain.release import released_checkpoint
-from nbvtrain import rl
+from nbvdata.schema.manifest import load_manifest
+from nbvdata.simulation.sources import find_part_meshes
+from nbvtrain.evaluation.benchmark import auc
+from nbvtrain.networks import rl
+from nbvtrain.planners.released import released_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SCANS = 10
@@ -248,8 +248,8 @@ def main() -> None:
     logits = actor_logits(policy)
     results = {"start": record("start", 0, logits)}
     if args.ranker != "none":  # the ranker of per-view features (docs/viewrank.md): the bar, trained on no RL
-        from nbvtrain.release import NoReleasedModel, released_ranker
-        from nbvtrain.viewrank import env_choice, load_ranker
+        from nbvtrain.ranking.viewrank import env_choice, load_ranker
+        from nbvtrain.planners.released import NoReleasedModel, released_ranker
 
         try:
             ranker = load_ranker(released_ranker() if args.ranker == "released" else Path(args.ranker))

@@ -19,18 +19,23 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata import __version__
-from nbvdata.commandline import (Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int,
-                                 run_command)
-from nbvdata.config import ConfigError, SimConfig, load_config
-from nbvdata.errors import UserError
-from nbvdata.mesh import ObjectMesh, load_mesh
-from nbvdata.oracle import pack_bits
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import ShardError, shard_files
-from nbvdata.text import plural, some_names
-from nbvdata.userarrays import GridError, NpyError, check_grids, read_npy
-from nbvdata.views import parse_view_indices
-
+from nbvdata.commandline import (
+    Parser,
+    exit_quietly_when_stdout_closes,
+    fraction,
+    non_negative_int,
+    positive_int,
+    run_command,
+)
+from nbvdata.core.config import ConfigError, SimConfig, load_config
+from nbvdata.core.errors import UserError
+from nbvdata.core.text import plural, some_names
+from nbvdata.core.userarrays import GridError, NpyError, check_grids, read_npy
+from nbvdata.core.views import parse_view_indices
+from nbvdata.schema.shards import ShardError, shard_files
+from nbvdata.simulation.mesh import ObjectMesh, load_mesh
+from nbvdata.simulation.oracle import pack_bits
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 
 DESCRIPTION = """\
 nbvdata makes datasets for learned next-best-view (NBV) planning: a simulated range sensor
@@ -83,8 +88,8 @@ def _parse_indices(text: str, count: int, flag: str = "--views", example: str = 
 def cmd_demo(args: argparse.Namespace) -> int:
     """Scan an object from a few views, integrate, report coverage, and render the state (and,
     with --rerun, record every scan)."""
-    from nbvdata.render import render_state
-    from nbvdata.scene import Scene
+    from nbvdata.simulation.scene import Scene
+    from nbvdata.view.render import render_state
 
     config = load_config(SimConfig, args.config, args.overrides)
     record = _record_module("--rerun") if args.rerun is not None else None
@@ -123,9 +128,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _record_module(flag: str):
-    """``nbvdata.rerun``, or a UsageError naming the install command when rerun-sdk is missing."""
+    """``nbvdata.view.rerun``, or a UsageError naming the install command when rerun-sdk is missing."""
     try:
-        import nbvdata.rerun as record
+        import nbvdata.view.rerun as record
     except ImportError as error:
         raise UsageError(f"{flag}: {error}") from None
     return record
@@ -133,9 +138,9 @@ def _record_module(flag: str):
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """Labelled reconstructions of every mesh, written to shards; resumes an interrupted job."""
-    from nbvdata.generate import FAILURES_FILE, RERUN_FOLDER, generate
-    from nbvdata.sources import builtin_sources, mesh_sources, part_sources
-    from nbvdata.policy import DEFAULT_PROVIDER, PolicySource
+    from nbvdata.datasets.generate import FAILURES_FILE, RERUN_FOLDER, generate
+    from nbvdata.simulation.policy import DEFAULT_PROVIDER, PolicySource
+    from nbvdata.simulation.sources import builtin_sources, mesh_sources, part_sources
 
     flags = {"episode.runs_per_mesh": args.runs_per_mesh, "episode.seed": args.seed,
              "episode.explore": args.explore, "episode.oracle_mix": args.oracle_mix,
@@ -187,7 +192,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if config.oracle.cover and any(result.cover_seconds for result in report.done):
         from collections import defaultdict
 
-        from nbvdata.summary import format_covers, summarise
+        from nbvdata.schema.summary import format_covers, summarise
 
         seconds = defaultdict(list)
         for result in report.done:
@@ -209,7 +214,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 def cmd_import_legacy(args: argparse.Namespace) -> int:
     """Stream the authors' published dataset (.zip or .npy) into shards; resumes an interrupted import."""
-    from nbvdata.authors import import_legacy
+    from nbvdata.datasets.authors import import_legacy
 
     try:
         report = import_legacy(args.volumes, args.poses, args.out, args.rows_per_shard, args.limit,
@@ -236,7 +241,7 @@ def _already_there(skipped: list) -> str:
 def cmd_inspect(args: argparse.Namespace) -> int:
     """Print samples per mesh, coverage statistics and the spread of labels over the views; an
     unreadable or damaged shard is an error, reported before anything is printed."""
-    from nbvdata.summary import format_summary, summarise
+    from nbvdata.schema.summary import format_summary, summarise
 
     paths = shard_files(args.shards)
     summary = summarise(paths)
@@ -245,7 +250,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         raise ShardError(summary.problems[0] + (f" (and {plural(others, 'other unreadable shard')})"
                                                 if others else ""))
     if args.by_step:  # reads every grid: a damaged one fails before anything is printed
-        from nbvdata.gridstats import by_step, format_by_step
+        from nbvdata.datasets.gridstats import by_step, format_by_step
 
         steps = by_step(paths)
     print(format_summary(summary, top=args.top))
@@ -261,8 +266,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def cmd_publish(args: argparse.Namespace) -> int:
     """Write the manifest and dataset card of a dataset version; an identical version is kept as is."""
-    from nbvdata.manifest import NOT_RECORDED
-    from nbvdata.publish import publish
+    from nbvdata.datasets.publish import publish
+    from nbvdata.schema.manifest import NOT_RECORDED
 
     started = time.perf_counter()
     result = publish(args.shards_dir, args.name, args.version, args.manifests, args.notes, args.meshes,
@@ -312,7 +317,7 @@ def _split_counts(split: dict) -> str:
 def cmd_verify(args: argparse.Namespace) -> int:
     """Recompute a published version's hashes and counts; name every missing, changed or extra shard.
     Given shards or a folder of them instead of a manifest: read each whole and name every damaged one."""
-    from nbvdata.manifest import check_shards, verify
+    from nbvdata.schema.manifest import check_shards, verify
 
     if args.manifest.is_dir() or args.manifest.suffix.lower() in (".h5", ".hdf5"):
         if args.root is not None or args.content:
@@ -349,8 +354,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """Write shards, or a published version's, in another project's file layout (``nbvdata.export``)."""
-    from nbvdata.export import describe, export
+    """Write shards, or a published version's, in another project's file layout (``nbvdata.datasets.export``)."""
+    from nbvdata.datasets.export import describe, export
 
     started = time.perf_counter()
     report = export(args.shards, args.format, args.out, args.root)
@@ -360,8 +365,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_show(args: argparse.Namespace) -> int:
     """Render a shard sample, a saved grid (.npy), or the grid after scanning an object."""
-    from nbvdata.render import render_state
-    from nbvdata.views import view_sphere
+    from nbvdata.core.views import view_sphere
+    from nbvdata.view.render import render_state
 
     if args.grid is not None and args.grid.suffix in (".h5", ".hdf5"):
         return _show_sample(args)
@@ -372,8 +377,8 @@ def cmd_show(args: argparse.Namespace) -> int:
         probabilities = _load_grid_file(args.grid, config.grid.size, args.index)
         title = args.grid.name
     else:
-        from nbvdata.grid import OccupancyGrid
-        from nbvdata.sensor import MeshScanner
+        from nbvdata.simulation.grid import OccupancyGrid
+        from nbvdata.simulation.sensor import MeshScanner
 
         obj = _load_object(args, config)
         scanner = MeshScanner(obj.mesh, config.sensor)
@@ -396,9 +401,9 @@ def cmd_show(args: argparse.Namespace) -> int:
 def _show_sample(args: argparse.Namespace) -> int:
     """Render sample ``--index`` of a shard with its NBV (red), the next best candidates (orange),
     the views its run scanned so far (green) and, when the shard holds point clouds, the state's cloud."""
-    from nbvdata.render import render_state
-    from nbvdata.shards import Shard
-    from nbvdata.views import ViewSet, look_at_rotations
+    from nbvdata.core.views import ViewSet, look_at_rotations
+    from nbvdata.schema.shards import Shard
+    from nbvdata.view.render import render_state
 
     with Shard(args.grid) as shard:
         if not 0 <= args.index < len(shard):

@@ -19,7 +19,7 @@ import textwrap
 from dataclasses import dataclass
 from typing import Callable
 
-from nbvdata.errors import UserError
+from nbvdata.core.errors import UserError
 
 CLOSED_PIPE_STATUS = 128 + signal.SIGPIPE
 """141: what a shell reports for a tool that SIGPIPE stopped, as ``yes | head -1`` does for ``yes``."""

@@ -1,5 +1,5 @@
 """Reconstruction as a Gymnasium environment, ``nbvdata/Reconstruct-v0``: the generator's own
-simulation (``nbvdata.episode``) driven one scan at a time by any agent.
+simulation (``nbvdata.simulation.episode``) driven one scan at a time by any agent.
 
     import gymnasium, nbvdata.env
     env = gymnasium.make("nbvdata/Reconstruct-v0", meshes="my_meshes/", info_scores=True)
@@ -23,7 +23,7 @@ costs a grid reset and one scan.
 - Reward: the increase of the observable coverage the scan gave, (newly covered observable
   reference points) / (observable points): the oracle's gain of the view scanned, so an episode's
   rewards add up to its final observable coverage minus the start scan's. ``overlap_penalty`` is
-  subtracted when the scan broke the overlap rule (its overlap, as ``nbvdata.oracle.overlap``,
+  subtracted when the scan broke the overlap rule (its overlap, as ``nbvdata.simulation.oracle.overlap``,
   under ``oracle.min_overlap``); 0 by default.
 - ``terminated`` when no valid candidate view would add ``episode.min_gain`` (where the
   generator stops a run); else ``truncated`` once ``episode.max_scans`` scans are done (the start
@@ -64,13 +64,13 @@ except ImportError:
 
 import numpy as np
 
-from nbvdata.config import ConfigError, SimConfig, apply_overrides, from_dict, load_config, to_dict
-from nbvdata.episode import Reconstruction
-from nbvdata.sources import MeshSource, SceneCache, builtin_sources, mesh_sources
-from nbvdata.mesh import MeshError, check_content
-from nbvdata.oracle import overlap, popcount
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import Pose, ViewSet, scanned_views, view_sphere
+from nbvdata.core.config import ConfigError, SimConfig, apply_overrides, from_dict, load_config, to_dict
+from nbvdata.core.views import Pose, ViewSet, scanned_views, view_sphere
+from nbvdata.simulation.episode import Reconstruction
+from nbvdata.simulation.mesh import MeshError, check_content
+from nbvdata.simulation.oracle import overlap, popcount
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.simulation.sources import MeshSource, SceneCache, builtin_sources, mesh_sources
 
 ENV_ID = "nbvdata/Reconstruct-v0"
 ACTIONS = ("view", "pose")
@@ -300,7 +300,7 @@ def check_view(action: Any, count: int, name: str = "action") -> int:
 
 def direction_pose(action: Any, views: ViewSet, name: str = "action") -> tuple[int, Pose]:
     """(nearest candidate view, pose) of a direction (3,) from the object centre: the sensor on
-    the view sphere there, looking at the centre, as ``nbvtrain.predict`` places a regression
+    the view sphere there, looking at the centre, as ``nbvtrain.networks.predict`` places a regression
     network's output. ValueError naming ``action`` for another shape, NaN, infinity or zero."""
     try:
         direction = np.asarray(action, dtype=np.float64)

@@ -23,68 +23,31 @@ import os
 import platform
 import re
 from collections import Counter
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from nbvdata.config import ConfigError
-from nbvdata.errors import UserError
-from nbvdata.files import shown_path
+from nbvdata.core.config import ConfigError
+from nbvdata.core.files import shown_path
+from nbvtrain.planners.released import (  # noqa: F401  (the lookups' old path: nbvtrain.release)
+    PASS_INSTEAD,
+    REFERENCE,
+    NoReleasedModel,
+    released_checkpoint,
+    released_files,
+    released_folder,
+    released_ranker,
+)
 
 NETWORKS = ("scores", "regression")
 """The released networks' tasks (their checkpoints: torch files, ``released_checkpoint``)."""
 TASKS = NETWORKS + ("viewrank",)
 """Everything ``release`` writes, in the card's order: the networks, then the ranker (``released_ranker``)."""
-CARD, REFERENCE = "MODEL_CARD.md", "reference.json"
+CARD = "MODEL_CARD.md"
 NOTES = "How they were chosen"  # the card's section of ``release(notes=...)``
 EVALUATIONS = "Evaluations"  # an earlier card's evaluation sections, kept by a release given no --evaluation
 KEEP = ("model", "task", "epoch", "config", "view_radius", "scene", "history", "target", "view_units")
-
-
-class NoReleasedModel(UserError):
-    """No released model is available for a task; the message says what to pass instead."""
-
-
-def released_folder() -> Path:
-    return Path(str(resources.files("nbvtrain") / "released"))
-
-
-def released_files(folder: Path | None = None) -> dict[str, str]:
-    """Task -> checkpoint file name of the models released in ``folder`` (default the package's),
-    as its reference.json records them (a bare file name beside it; anything else is ignored)."""
-    try:
-        recorded = json.loads(((folder or released_folder()) / REFERENCE).read_text())
-    except (OSError, ValueError):
-        return {}
-    files = {task: entry.get("checkpoint") for task, entry in recorded.items() if isinstance(entry, dict)}
-    return {task: name for task, name in files.items() if isinstance(name, str) and name == Path(name).name}
-
-
-PASS_INSTEAD = {"cover": "--cover-model runs/cover-gbm/cover.json",
-                "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt"}
-"""What to pass for a task whose model is no network checkpoint (``released_checkpoint``'s message)."""
-
-
-def released_checkpoint(task: str = "scores") -> Path:
-    """The released checkpoint of ``task`` (scores or regression); ``NoReleasedModel`` otherwise."""
-    name = released_files().get(task)
-    path = released_folder() / name if name else None
-    if path is None or not path.is_file():
-        instead = PASS_INSTEAD.get(task, "a checkpoint written by nbvtrain fit (runs/NAME/best.pt)")
-        raise NoReleasedModel(f"no {task} model is released with this package: pass {instead}")
-    return path
-
-
-def released_ranker() -> Path:
-    """The released ranker of candidate views (``nbvtrain.viewrank``); ``NoReleasedModel`` otherwise."""
-    name = released_files().get("viewrank")
-    path = released_folder() / name if name else None
-    if path is None or not path.is_file():
-        raise NoReleasedModel("no viewrank model is released with this package: pass a ranker written by nbvtrain fit "
-                              "--model viewrank-gbm (runs/NAME/viewrank.json) with --ranker")
-    return path
 
 
 def reference_grid() -> np.ndarray:
@@ -100,7 +63,7 @@ def reference_grid() -> np.ndarray:
 def reference_answer(checkpoint: Path) -> dict:
     """What ``checkpoint`` answers for ``reference_grid()`` with nothing scanned: the direction,
     and for a score network the chosen view, its score and the runner-up's."""
-    from nbvtrain.predict import Predictor
+    from nbvtrain.networks.predict import Predictor
 
     predictor = Predictor(checkpoint)
     (prediction,) = predictor.predict(reference_grid())
@@ -124,7 +87,7 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
     another network's name is replaced: (files written, files removed)."""
     import torch
 
-    from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
+    from nbvtrain.networks.checkpoint import load_checkpoint, save_checkpoint
 
     chosen = {}  # every run read and checked before anything is written: a bad one leaves no --out behind
     ranker = _ranker_release(runs["viewrank"]) if "viewrank" in runs else None
@@ -188,7 +151,7 @@ def release(runs: dict[str, Path], evaluations: list[Path], out: Path,
 def _ranker_release(given: Path) -> tuple[Path, dict]:
     """(model file, its run's metrics.json) of ``--viewrank``: a run folder of ``nbvtrain fit --model
     viewrank-*`` or its model file; the file is loaded (refused in one line if it is no ranker)."""
-    from nbvtrain.viewrank import load_ranker
+    from nbvtrain.ranking.viewrank import load_ranker
 
     folder = given if given.is_dir() else given.parent
     model = given
@@ -210,9 +173,9 @@ def _ranker_release(given: Path) -> tuple[Path, dict]:
 def ranker_reference_answer(path: Path) -> dict:
     """What the ranker in ``path`` answers for ``reference_grid()`` with nothing scanned, among the
     default scene's candidate views: the chosen view, its score and the runner-up's."""
-    from nbvdata.config import SimConfig
-    from nbvdata.views import view_sphere
-    from nbvtrain.viewrank import load_ranker
+    from nbvdata.core.config import SimConfig
+    from nbvdata.core.views import view_sphere
+    from nbvtrain.ranking.viewrank import load_ranker
 
     config = SimConfig()
     scores = load_ranker(path).view_scores(reference_grid(), np.zeros((0, 3)), view_sphere(config.views), config)
@@ -230,7 +193,7 @@ def _ranker_section(source: Path, path: Path, metrics: dict) -> str:
     far = metrics.get("baselines", {}).get("farthest (its own choice)", float("nan"))
     lines = [f"## viewrank: {metrics['model']} (`{path.name}` beside this card, {path.stat().st_size / 2 ** 20:.1f} MiB)",
              "",
-             f"- A ranker of candidate views from per-view features (`nbvtrain.viewrank`), any view set; released from "
+             f"- A ranker of candidate views from per-view features (`nbvtrain.ranking.viewrank`), any view set; released from "
              f"`{shown_path(source)}`.",
              f"- Data: {data or 'shard folders'}; one mesh split for all ({split}): "
              f"{metrics['train_states']} training states ({metrics['train_rows']} rows), {metrics['val_states']} "
@@ -279,7 +242,7 @@ def _card_sections(card: Path) -> dict[str, str]:
 
 def _run_history(run: Path, state: dict) -> list[dict]:
     """Every epoch's history row of ``run`` (its last.pt), or ``state``'s where the run has none."""
-    from nbvtrain.checkpoint import load_checkpoint
+    from nbvtrain.networks.checkpoint import load_checkpoint
 
     last = run / "last.pt"
     return load_checkpoint(last)["history"] if last.is_file() else state["history"]
@@ -342,10 +305,10 @@ def _added_lines(data: dict) -> list[str]:
 
 def _lineage_lines(data: dict, epochs: int, seconds: float) -> list[str]:
     """The card's line on the checkpoints a run started from (``fit --init``), as its data.json
-    recorded them (``nbvtrain.train.init_record``; an older record is completed while its file is
+    recorded them (``nbvtrain.networks.train.init_record``; an older record is completed while its file is
     still here), with the epochs and wall time of the whole chain up to the release (``epochs``,
     ``seconds``: the released run's own); where a link has no recorded time, the chain's is unknown."""
-    from nbvtrain.train import completed_init_record
+    from nbvtrain.networks.train import completed_init_record
 
     steps, known, seen = [], True, set()
     init = data.get("init")
@@ -382,7 +345,7 @@ def _card(sections: list[str], answers: dict, evaluations: list[Path], torch_ver
           notes: str | None = None, kept: str | None = None) -> str:
     """The model card; ``packaged``: written into the package's folder, whose models commands use
     by default (elsewhere, they are used with --checkpoint)."""
-    from nbvtrain.train import cpu_name
+    from nbvtrain.networks.train import cpu_name
 
     use = ("the candidate-score network `nbvtrain evaluate`, `predict` and `plan` use by default" if packaged else
            "the candidate-score network (use a file here with `--checkpoint`, or `--score-checkpoint` for "

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nbvtrain.checkpoint import load_checkpoint, save_checkpoint
+from nbvtrain.networks.checkpoint import load_checkpoint, save_checkpoint
 
 
 def main() -> None:

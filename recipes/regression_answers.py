@@ -8,7 +8,7 @@ validation states that ``RUN/data.json`` records (its shards and ``val_indices``
   two opposite good views 0),
 - gain ratio: the mean over states of the gain of the candidate view nearest to the answer over
   the best eligible gain (0 for a view that breaks the overlap rule or was scanned:
-  ``nbvtrain.metrics.gain_ratio`` with the scanned views counted invalid),
+  ``nbvtrain.networks.metrics.gain_ratio`` with the scanned views counted invalid),
 - resultant: the length of the mean answer direction (1: one direction for every state; the
   labels' own is printed beside),
 - views: how many candidate views the answers land on.
@@ -17,7 +17,7 @@ The random row is the mean gain ratio of a uniformly random unscanned view. The 
 (``nbvtrain evaluate``) decides; this says why it goes as it does. ``--shards DIR`` takes the
 states of DIR instead of the run's validation states: e.g. a policy's own rollout on the validation
 objects (``nbvdata generate --manifest M --part val --policy CKPT``), where a state reached through
-a pose counts that scan as its nearest candidate view (``nbvtrain.training_data.nearest_views``).
+a pose counts that scan as its nearest candidate view (``nbvtrain.networks.training_data.nearest_views``).
 
     python recipes/regression_answers.py RUN CKPT [CKPT...] [--samples 1500] [--seed 0] [--shards DIR]
 """
@@ -31,10 +31,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbvdata.shards import shard_files
-from nbvtrain.training_data import load_shards, load_view_states, to_grids
-from nbvtrain.metrics import gain_ratio, nearest_view, unit
-from nbvtrain.predict import Predictor
+from nbvdata.schema.shards import shard_files
+from nbvtrain.networks.metrics import gain_ratio, nearest_view, unit
+from nbvtrain.networks.predict import Predictor
+from nbvtrain.networks.training_data import load_shards, load_view_states, to_grids
 
 
 def main() -> None:

@@ -191,7 +191,7 @@ fit_flags() {  # NET -> the fit settings of its first sitting (constant lr: a ru
             rolled_by "$policy" "$SCORES_DAGGER" scores-dagger
             echo "$(fit_flags scores-fc3) --add-train $SCORES_DAGGER --init $policy" ;;
         regression) echo "--model nbvnet-4-3 --lr 3e-4 --augment" ;;
-        # the same network, learning from the near-best views instead of the label (nbvtrain/scores.py)
+        # the same network, learning from the near-best views instead of the label (nbvtrain/networks/scores.py)
         regression-near-best) echo "--model nbvnet-4-3 --lr 3e-4 --augment --regression-loss near-best --near-best 0.9" ;;
         regression-dagger|regression-dagger[0-9]*)
             local round extra

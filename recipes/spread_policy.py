@@ -11,7 +11,7 @@ network above a random view?).
   standardised scores plus W times the standardised angular distance to the nearest scan.
 
 The first two are the built-in ``farthest`` planner and ``nbvtrain evaluate --spread W`` as
-policies (``nbvdata.views``; they give the same runs); candidate views are the default scene's
+policies (``nbvdata.core.views``; they give the same runs); candidate views are the default scene's
 (500 on the upper hemisphere), the observation's ``taken`` (V,) marks the scanned ones.
 """
 
@@ -21,8 +21,8 @@ import functools
 
 import numpy as np
 
-from nbvdata.config import ViewConfig
-from nbvdata.views import farthest_view, nearest_scan_cosines, spread_view, view_sphere
+from nbvdata.core.config import ViewConfig
+from nbvdata.core.views import farthest_view, nearest_scan_cosines, spread_view, view_sphere
 
 
 @functools.cache
@@ -33,8 +33,8 @@ def _units() -> np.ndarray:
 
 @functools.cache
 def _predictor():
-    from nbvtrain.predict import Predictor
-    from nbvtrain.release import released_checkpoint
+    from nbvtrain.networks.predict import Predictor
+    from nbvtrain.planners.released import released_checkpoint
 
     return Predictor(released_checkpoint("regression"))
 
@@ -59,8 +59,8 @@ regression_w0, regression_w05, regression_w1, regression_w2 = (functools.partial
 
 @functools.cache
 def _score_predictor():
-    from nbvtrain.predict import Predictor
-    from nbvtrain.release import released_checkpoint
+    from nbvtrain.networks.predict import Predictor
+    from nbvtrain.planners.released import released_checkpoint
 
     return Predictor(released_checkpoint("scores"))
 
@@ -68,7 +68,7 @@ def _score_predictor():
 def _scores(observation: dict, weight: float) -> int:
     """The released score network's standardised scores plus ``weight`` times the standardised
     angular distance to the nearest scanned view, both over the unscanned views."""
-    from nbvtrain.scores import standardise
+    from nbvtrain.networks.scores import standardise
 
     taken = np.asarray(observation["taken"], dtype=bool)
     free = ~taken

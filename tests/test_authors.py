@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import DATASET
 from numpy.lib import format as npy_format
 
-from conftest import DATASET
-from nbvdata import authors as legacy
 from nbvdata.cli import main
-from nbvdata.authors import ROW, AuthorsDataError, import_legacy
-from nbvdata.shards import OPTIONAL, Shard
+from nbvdata.datasets import authors as legacy
+from nbvdata.datasets.authors import ROW, AuthorsDataError, import_legacy
+from nbvdata.schema.shards import OPTIONAL, Shard
 
 KNOWN = [[1000, 3000, 3000, 5000], [2000], [500, 600, 9000], [4000, 4001], [100, 200, 300, 400, 30000]]
 """Known voxels of each state of each run: runs of 4, 1, 3, 2 and 5 steps (3000 twice: a scan

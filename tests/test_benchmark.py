@@ -8,17 +8,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from conftest import SHARED, need
-from nbvdata.config import ConfigError, SimConfig, ViewConfig, load_config
-from nbvdata.episode import scene_rng
-from nbvdata.layout_tammes import tammes_128
-from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import view_sphere
-from nbvtrain.benchmark import (PROTOCOLS, Protocol, RunMeasure, SurfaceMeasure, auc, load_protocol, protocol_names,
-                                scans_to)
+
+from nbvdata.core.config import ConfigError, SimConfig, ViewConfig, load_config
+from nbvdata.core.layout_tammes import tammes_128
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.episode import scene_rng
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 from nbvtrain.cli import main
+from nbvtrain.evaluation.benchmark import (
+    PROTOCOLS,
+    Protocol,
+    RunMeasure,
+    SurfaceMeasure,
+    auc,
+    load_protocol,
+    protocol_names,
+    scans_to,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["sensor.width=44", "sensor.height=36", "coverage.points=2000"]
@@ -173,7 +181,7 @@ def test_a_planner_that_raises_on_one_object_fails_that_object_only(small_protoc
 
     monkeypatch.setattr(planners.FarthestPlanner, "next_pose", fails_on_the_ring)
     monkeypatch.setattr(planners.FarthestPlanner, "_ring", False, raising=False)
-    import nbvtrain.benchmark as bench
+    import nbvtrain.evaluation.benchmark as bench
 
     build = bench.Scene.build
 
@@ -222,7 +230,7 @@ def test_a_bad_protocol_file_is_one_line(small_protocol, corpus, tmp_path, capsy
 
 
 def test_the_default_corpus_missing_is_one_line(tmp_path, capsys, monkeypatch):
-    import nbvtrain.benchmark as bench
+    import nbvtrain.evaluation.benchmark as bench
 
     monkeypatch.setattr(bench, "BENCH_MESHES", tmp_path / "absent")
     assert main(["benchmark", "--out", str(tmp_path / "out"), "--no-progress"]) == 2
@@ -234,7 +242,7 @@ def test_starts_and_budgets_must_be_positive(capsys):
         main(["benchmark", "--starts", "0"])
     assert stopped.value.code == 2 and "--starts" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="at least one start view"):
-        from nbvtrain.benchmark import benchmark
+        from nbvtrain.evaluation.benchmark import benchmark
 
         benchmark([], [], SimConfig(), Protocol(name="t"), starts=0)
     assert math.isfinite(load_protocol("scvp").voxel)
@@ -264,8 +272,8 @@ def _synthetic(objects: int, starts: int = 1) -> tuple:
     """A report of ``objects`` objects without simulating them: oracle 5 and scores 1 AUC points above
     farthest on every object (so every interval excludes 0), a 6-scan budget, farthest missing 95 %
     on the first object and every planner 99 % everywhere. (report, per-object rows)"""
-    from nbvtrain.benchmark import RUN_METRICS, BenchmarkReport
-    from nbvtrain.benchmark_report import per_object
+    from nbvtrain.evaluation.benchmark import RUN_METRICS, BenchmarkReport
+    from nbvtrain.evaluation.benchmark_report import per_object
 
     rng = np.random.default_rng(0)
     report = BenchmarkReport(Protocol(name="t", budgets={"6 scans": 6}), ["oracle", "scores", "farthest"])
@@ -285,8 +293,8 @@ def _synthetic(objects: int, starts: int = 1) -> tuple:
 def test_few_objects_give_figures_without_a_verdict_and_every_table_states_n():
     """Two objects: intervals that exclude 0 are given, but no difference is called separable and no
     planner ahead, and the top of benchmark.md says why; 30 objects decide."""
-    from nbvtrain.benchmark_report import summary_markdown
-    from nbvtrain.statistics import MIN_OBJECTS
+    from nbvtrain.evaluation.benchmark_report import summary_markdown
+    from nbvtrain.evaluation.statistics import MIN_OBJECTS
 
     report, rows = _synthetic(2)
     md = summary_markdown(report, rows, "farthest", 0)
@@ -302,7 +310,7 @@ def test_few_objects_give_figures_without_a_verdict_and_every_table_states_n():
 
 
 def test_benchmark_md_says_what_not_reached_counts_as_and_its_units():
-    from nbvtrain.benchmark_report import summary_markdown
+    from nbvtrain.evaluation.benchmark_report import summary_markdown
 
     report, rows = _synthetic(2)
     md = summary_markdown(report, rows, "farthest", 0)

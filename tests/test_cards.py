@@ -1,5 +1,5 @@
 """Dataset cards describe the grid as it was made: a fitted cube by its rule and resolved side
-(never "of None m"), and every committed card's settings line is what nbvdata.card writes from
+(never "of None m"), and every committed card's settings line is what nbvdata.datasets.card writes from
 its manifest today."""
 
 import json
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from nbvdata.card import _grid_words, _made
-from nbvdata.config import SimConfig, load_config
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.card import _grid_words, _made
 
 ROOT = Path(__file__).resolve().parents[1]
 MANIFESTS = sorted((ROOT / "manifests").glob("*.json"))

@@ -5,11 +5,11 @@ from nbvdata.cli import main
 
 
 def test_demo_writes_a_png(tmp_path, capsys, monkeypatch):
-    import nbvdata.render
+    import nbvdata.view.render
 
     drawn = {}
-    render_state = nbvdata.render.render_state
-    monkeypatch.setattr(nbvdata.render, "render_state", lambda *a, **k: drawn.update(k) or render_state(*a, **k))
+    render_state = nbvdata.view.render.render_state
+    monkeypatch.setattr(nbvdata.view.render, "render_state", lambda *a, **k: drawn.update(k) or render_state(*a, **k))
     out = tmp_path / "demo.png"
     assert main(["demo", "--scans", "2", "--set", "views.count=50", "--set", "coverage.points=2000",
                  "--out", str(out)]) == 0
@@ -25,11 +25,11 @@ def test_picture_titles_say_of_which_surface_the_coverage_is(tmp_path, capsys, m
     shard's coverage and gains)."""
     from pathlib import Path
 
-    import nbvdata.render
+    import nbvdata.view.render
 
     titles = []
-    render_state = nbvdata.render.render_state
-    monkeypatch.setattr(nbvdata.render, "render_state", lambda *a, **k: titles.append(k["title"]) or
+    render_state = nbvdata.view.render.render_state
+    monkeypatch.setattr(nbvdata.view.render, "render_state", lambda *a, **k: titles.append(k["title"]) or
                         render_state(*a, **k))
     smoke = str(Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml")
     assert main(["demo", "--shape", "mug", "--scans", "2", "--config", smoke, "--out", str(tmp_path / "d.png")]) == 0
@@ -51,11 +51,11 @@ def _grid(seed: int = 0) -> np.ndarray:
 
 
 def test_show_renders_a_saved_grid(tmp_path, monkeypatch):
-    import nbvdata.render
+    import nbvdata.view.render
 
     drawn = []
-    render_state = nbvdata.render.render_state
-    monkeypatch.setattr(nbvdata.render, "render_state", lambda grid, *a, **k: drawn.append(grid) or
+    render_state = nbvdata.view.render.render_state
+    monkeypatch.setattr(nbvdata.view.render, "render_state", lambda grid, *a, **k: drawn.append(grid) or
                         render_state(grid, *a, **k))
     np.save(tmp_path / "g.npy", _grid())
     out = tmp_path / "g.png"
@@ -89,11 +89,11 @@ def test_show_refuses_what_predict_refuses(case, tmp_path, capsys):
 
 def test_show_checks_grids_with_predicts_own_function():
     """One check for both commands: nbvtrain's API uses nbvdata's check_grids (nbvdata imports no nbvtrain)."""
-    import nbvdata.userarrays
-    import nbvtrain.predict
+    import nbvdata.core.userarrays
+    import nbvtrain.networks.predict
 
-    assert nbvtrain.predict.check_grids is nbvdata.userarrays.check_grids
-    assert nbvtrain.predict.GridError is nbvdata.userarrays.GridError
+    assert nbvtrain.networks.predict.check_grids is nbvdata.core.userarrays.check_grids
+    assert nbvtrain.networks.predict.GridError is nbvdata.core.userarrays.GridError
 
 
 def test_show_names_a_file_that_is_no_plain_array(tmp_path, capsys):
@@ -109,16 +109,16 @@ def test_show_names_a_file_that_is_no_plain_array(tmp_path, capsys):
 
 def _legend_of_show(argv, monkeypatch) -> list[str]:
     """The legend texts of the picture ``nbvdata show`` draws."""
-    import nbvdata.render
+    import nbvdata.view.render
 
-    texts, draw_state = [], nbvdata.render.draw_state
+    texts, draw_state = [], nbvdata.view.render.draw_state
 
     def spy(*args, **kwargs):
         figure = draw_state(*args, **kwargs)
         texts.extend(text.get_text() for legend in figure.legends for text in legend.get_texts())
         return figure
 
-    monkeypatch.setattr(nbvdata.render, "draw_state", spy)
+    monkeypatch.setattr(nbvdata.view.render, "draw_state", spy)
     assert main(["show", *argv]) == 0
     return texts
 
@@ -131,7 +131,7 @@ def test_show_marks_the_views_scanned_and_the_highlighted_one(tmp_path, monkeypa
 
 
 def test_show_of_a_shard_sample_draws_the_views_its_run_scanned(tmp_path, monkeypatch):
-    from nbvdata.shards import Shard
+    from nbvdata.schema.shards import Shard
 
     assert main(["generate", "--config", "configs/smoke.yaml", "--runs-per-mesh", "1", "--out", str(tmp_path / "d"),
                  "--no-progress"]) == 0

@@ -7,22 +7,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-
-from nbvdata._open3d import open3d as o3d
-from nbvdata.cli import main
-from nbvdata.cloud import ScannedCloud, farthest_points, farthest_points_reference, reduce_cloud
-from nbvdata.config import ConfigError, MeshConfig, SensorConfig, SimConfig, ViewConfig, load_config, FIXED_LAYOUT_COUNTS
-from nbvdata.episode import Reconstruction, ViewCache, scene_rng
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources
-from nbvdata.mesh import load_mesh
-from nbvdata.sensor import EDGE_TOLERANCE, MeshScanner
-from nbvdata.scene import Scene
-from nbvdata.shapes import builtin_object
-from nbvdata.shards import Shard, view_state
-from nbvdata.views import FIXED_LAYOUTS, Y_UP_TO_Z_UP, pc_nbv_33, view_sphere
-
 from conftest import MESHES, SHARED, need
+
+from nbvdata.cli import main
+from nbvdata.core.cloud import ScannedCloud, farthest_points, farthest_points_reference, reduce_cloud
+from nbvdata.core.config import (
+    FIXED_LAYOUT_COUNTS,
+    ConfigError,
+    MeshConfig,
+    SensorConfig,
+    SimConfig,
+    ViewConfig,
+    load_config,
+)
+from nbvdata.core.views import FIXED_LAYOUTS, Y_UP_TO_Z_UP, pc_nbv_33, view_sphere
+from nbvdata.datasets.generate import generate
+from nbvdata.schema.shards import Shard, view_state
+from nbvdata.simulation._open3d import open3d as o3d
+from nbvdata.simulation.episode import Reconstruction, ViewCache, scene_rng
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sensor import EDGE_TOLERANCE, MeshScanner
+from nbvdata.simulation.shapes import builtin_object
+from nbvdata.simulation.sources import builtin_sources
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 POINTS = 128

@@ -16,14 +16,14 @@ import yaml
 from nbvdata.cli import build_parser as nbvdata_parser
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.commandline import Integer, Number
-from nbvdata.config import SimConfig
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.views import view_sphere
+from nbvdata.core.config import SimConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 from nbvtrain.cli import build_parser as nbvtrain_parser
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import build_model
-from nbvtrain.train import save_training_state
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import build_model
+from nbvtrain.networks.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 PARSERS = {"nbvdata": nbvdata_parser, "nbvtrain": nbvtrain_parser}

@@ -1,7 +1,7 @@
 import pytest
 import yaml
 
-from nbvdata.config import ConfigError, SimConfig, load_config, to_yaml
+from nbvdata.core.config import ConfigError, SimConfig, load_config, to_yaml
 
 
 def test_defaults_are_the_authors_settings():
@@ -58,7 +58,7 @@ def test_missing_and_broken_files(tmp_path):
 def test_numbers_in_exponent_notation_are_numbers_in_files_flags_and_overrides(tmp_path, capsys):
     """YAML 1.1 (PyYAML) reads 1e-5 as text: a float setting takes it as the number it spells."""
     from nbvtrain.cli import main
-    from nbvtrain.config import TrainConfig
+    from nbvtrain.networks.config import TrainConfig
 
     assert yaml.safe_load("lr: 1e-5")["lr"] == "1e-5"  # the quirk this guards against
     path = tmp_path / "train.yaml"

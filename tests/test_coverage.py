@@ -3,11 +3,11 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from nbvdata.config import CoverageConfig, SensorConfig, ViewConfig
-from nbvdata.coverage import SurfaceCoverage
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.views import Pose, view_sphere
+from nbvdata.core.config import CoverageConfig, SensorConfig, ViewConfig
+from nbvdata.core.views import Pose, view_sphere
+from nbvdata.simulation.coverage import SurfaceCoverage
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""Learned set covers (issue 57): SCVP's network (nbvtrain.covernet) and the view-agnostic cover
-model (nbvtrain.covermodel) fitted on tiny cover shards, their files load without pickle and refuse
+"""Learned set covers (issue 57): SCVP's network (nbvtrain.ranking.covernet) and the view-agnostic cover
+model (nbvtrain.ranking.covermodel) fitted on tiny cover shards, their files load without pickle and refuse
 foreign ones in one line, the cover planners visit their set in tour order, plan again once it is
 done and trade views for path with a travel weight; the benchmark's path to each target."""
 
@@ -13,15 +13,15 @@ import pytest
 import torch
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import SimConfig, load_config
-from nbvdata.paths import path_length, shortest_tour
-from nbvdata.views import ViewSet, view_sphere
-from nbvtrain.benchmark import protocol_for, run_metrics
-from nbvtrain.checkpoint import CheckpointError
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.paths import path_length, shortest_tour
+from nbvdata.core.views import ViewSet, view_sphere
 from nbvtrain.cli import main as nbvtrain_main
-from nbvtrain.covermodel import expected_sets, load_cover_model, predicted_sets, set_quality
-from nbvtrain.covernet import POSITIVE_WEIGHT, load_covernet, network, scvp_loss
+from nbvtrain.evaluation.benchmark import protocol_for, run_metrics
+from nbvtrain.networks.checkpoint import CheckpointError
 from nbvtrain.planners import CoverPlanner, Observation, build_planners
+from nbvtrain.ranking.covermodel import expected_sets, load_cover_model, predicted_sets, set_quality
+from nbvtrain.ranking.covernet import POSITIVE_WEIGHT, load_covernet, network, scvp_loss
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -225,7 +225,7 @@ def test_a_cover_model_says_once_where_it_plans_on_a_view_set_it_never_saw(model
 
 
 def test_plan_names_its_own_fix_for_scvp_net_on_other_views(models):
-    from nbvtrain.plan import PlanError, load_planner
+    from nbvtrain.robot.plan import PlanError, load_planner
 
     with pytest.raises(PlanError) as caught:
         load_planner(models["scvp-net"], config=SimConfig())
@@ -245,9 +245,9 @@ def test_the_path_to_each_target_is_the_path_at_the_scan_that_reaches_it():
 def test_plan_returns_the_whole_planned_set_in_tour_order(models, tmp_path):
     import yaml
 
-    from nbvdata.sensor import MeshScanner
-    from nbvdata.shapes import builtin_object
-    from nbvtrain.plan import plan
+    from nbvdata.simulation.sensor import MeshScanner
+    from nbvdata.simulation.shapes import builtin_object
+    from nbvtrain.robot.plan import plan
 
     config = load_config(SimConfig, None, ["views.layout=scvp-32", "views.count=32"])
     views = view_sphere(config.views)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from nbvdata.cli import main as nbvdata
-from nbvdata.shards import Shard, ShardError
+from nbvdata.schema.shards import Shard, ShardError
 from nbvtrain.cli import main as nbvtrain
-from nbvtrain.dataset import NBVDataset
+from nbvtrain.networks.dataset import NBVDataset
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--epochs", "1", "--model", "nbvnet-3-3", "--batch-size", "8", "--threads", "1", "--no-progress"]
@@ -122,7 +122,7 @@ def _overwrite(path: Path, offset: int, data: bytes) -> None:
 def _without_checksums(path: Path, out: Path) -> Path:
     """``path`` rewritten as shards were before issue 50: contiguous per-shard arrays, no
     Fletcher-32, no attributes' digest (to test what readers check in such a shard)."""
-    from nbvdata.shards import ATTRIBUTES_DIGEST, PER_SHARD
+    from nbvdata.schema.shards import ATTRIBUTES_DIGEST, PER_SHARD
 
     with h5py.File(path, "r") as src, h5py.File(out, "w", libver=("earliest", "v110")) as dst:
         for key, value in src.attrs.items():

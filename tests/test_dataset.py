@@ -1,4 +1,4 @@
-"""nbvtrain.dataset: the same samples as nbvtrain fit's loader through a plain DataLoader with
+"""nbvtrain.networks.dataset: the same samples as nbvtrain fit's loader through a plain DataLoader with
 worker processes, in memory or lazily, on shards or a published version; the view state
 derived from run/step/last_view is what a real reconstruction scanned."""
 
@@ -11,16 +11,16 @@ import torch
 from torch.utils.data import DataLoader
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import Reconstruction, ViewCache, run_reconstruction
-from nbvdata.manifest import open_verified
-from nbvdata.publish import publish
-from nbvdata.scene import Scene
-from nbvdata.shapes import builtin_object
-from nbvdata.shards import Shard, ShardError
-from nbvtrain.training_data import load_shards, published_split, to_grids
-from nbvtrain.dataset import NBVDataset, view_state
-from nbvtrain.train import _batch
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.publish import publish
+from nbvdata.schema.manifest import open_verified
+from nbvdata.schema.shards import Shard, ShardError
+from nbvdata.simulation.episode import Reconstruction, ViewCache, run_reconstruction
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import builtin_object
+from nbvtrain.networks.dataset import NBVDataset, view_state
+from nbvtrain.networks.train import _batch
+from nbvtrain.networks.training_data import load_shards, published_split, to_grids
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -107,7 +107,7 @@ def test_the_view_state_in_shards_is_the_start_view_and_the_labelled_views_befor
 
 
 def test_the_view_state_is_what_a_real_reconstruction_scanned(monkeypatch):
-    """Runs of nbvdata.episode with every scan logged: at each recorded state the views scanned so
+    """Runs of nbvdata.simulation.episode with every scan logged: at each recorded state the views scanned so
     far are view_state's, whatever order the states come in."""
     config = load_config(SimConfig, SMOKE)
     scene = Scene.build(builtin_object("snowman", config.mesh), config, np.random.default_rng(0), threads=1)

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from nbvdata.config import SensorConfig
-from nbvdata.files import sha256_file
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import Pose, view_sphere
+from nbvdata.core.config import SensorConfig
+from nbvdata.core.files import sha256_file
+from nbvdata.core.views import Pose, view_sphere
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 # Every numpy dispatch target above the x86-64-v2 baseline, OpenBLAS's SSE3 kernels (no AVX, no
@@ -55,7 +55,7 @@ def test_shards_are_byte_identical_with_an_old_cpus_arithmetic(tmp_path):
 
 _SHAPE_DIGESTS = """
 import hashlib, json
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 print(json.dumps({name: [builtin_object(name).mesh_id,
                          hashlib.sha256(builtin_object(name).mesh.vertices.tobytes()).hexdigest()]
                   for name in BUILTIN_SHAPES}))
@@ -84,7 +84,7 @@ class _PerturbedDistances:
         self.scene, self.rng = scene, rng
 
     def cast_rays(self, rays, nthreads=0):
-        from nbvdata._open3d import open3d as o3d
+        from nbvdata.simulation._open3d import open3d as o3d
 
         result = self.scene.cast_rays(rays, nthreads=nthreads)
         t_hit = result["t_hit"].numpy()
@@ -121,9 +121,9 @@ def test_a_face_seen_head_on_is_hit_exactly_on_its_plane():
 
 
 def _smoke_units(*settings: str):
-    from nbvdata.config import SimConfig, load_config
-    from nbvdata.generate import plan_units
-    from nbvdata.sources import builtin_sources
+    from nbvdata.core.config import SimConfig, load_config
+    from nbvdata.datasets.generate import plan_units
+    from nbvdata.simulation.sources import builtin_sources
 
     config = load_config(SimConfig, SMOKE, ["generate.workers=1", *settings])
     return config, plan_units(builtin_sources(config.mesh)[:3], config)
@@ -136,7 +136,7 @@ def test_a_shard_is_the_same_bytes_while_something_else_holds_its_datasets(tmp_p
     in other bytes). Here every dataset object is held until the file is written."""
     import h5py
 
-    from nbvdata.generate import run_unit
+    from nbvdata.datasets.generate import run_unit
 
     config, units = _smoke_units("state.points=64")
     run_unit(units[0], config, tmp_path / "plain")
@@ -158,7 +158,7 @@ import sys
 from pathlib import Path
 sys.path.insert(0, {tests!r})
 from test_determinism import _smoke_units
-from nbvdata.generate import run_unit
+from nbvdata.datasets.generate import run_unit
 config, units = _smoke_units()
 run_unit(units[{index}], config, Path({out!r}))
 """
@@ -167,7 +167,7 @@ run_unit(units[{index}], config, Path({out!r}))
 def test_a_unit_redone_after_other_units_or_in_a_fresh_process_is_the_same_bytes(tmp_path):
     """What a lost cluster worker's unit goes through: done again by a worker that has already
     written other shards, or by a new process."""
-    from nbvdata.generate import run_unit
+    from nbvdata.datasets.generate import run_unit
 
     config, units = _smoke_units()
     for unit in units:

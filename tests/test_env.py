@@ -14,17 +14,17 @@ import pytest
 
 gymnasium = pytest.importorskip("gymnasium", reason="gymnasium (the [rl] extra) is not installed")
 
-import nbvdata.env  # noqa: E402  (registers nbvdata/Reconstruct-v0)
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
-from nbvdata.config import ConfigError, SimConfig, load_config  # noqa: E402
+import nbvdata.env  # noqa: E402  (registers nbvdata/Reconstruct-v0)
+from nbvdata.core.config import ConfigError, SimConfig, load_config  # noqa: E402
+from nbvdata.datasets.generate import generate  # noqa: E402
 from nbvdata.env import ENV_ID, ReconstructEnv  # noqa: E402
-from nbvdata.episode import Reconstruction, start_view  # noqa: E402
-from nbvdata.generate import generate  # noqa: E402
-from nbvdata.sources import builtin_sources
-from nbvdata.mesh import MeshError  # noqa: E402
-from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvdata.shards import Shard  # noqa: E402
+from nbvdata.schema.shards import Shard  # noqa: E402
+from nbvdata.simulation.episode import Reconstruction, start_view  # noqa: E402
+from nbvdata.simulation.mesh import MeshError  # noqa: E402
+from nbvdata.simulation.shapes import BUILTIN_SHAPES  # noqa: E402
+from nbvdata.simulation.sources import builtin_sources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -302,7 +302,7 @@ def test_the_overlap_penalty_applies_to_moves_that_break_the_rule(config):
 
 
 def test_a_reset_on_a_mesh_seen_before_builds_no_scene(config, monkeypatch):
-    import nbvdata.generate as job
+    import nbvdata.datasets.generate as job
 
     built = []
     build = job.Scene.build
@@ -428,8 +428,9 @@ def mesh_folder(tmp_path_factory) -> Path:
 def test_evaluate_runs_a_policy_on_the_envs_observation_in_the_same_table(config, mesh_folder, tmp_path, capsys):
     """``--planners env_policies:first_untaken,random``: one table; the policy saw exactly the
     environment's observations of the same mesh, start and moves, and the coverage is the env's."""
-    from nbvtrain.cli import main
     import env_policies
+
+    from nbvtrain.cli import main
 
     env_policies.SEEN.clear()
     out = tmp_path / "eval"

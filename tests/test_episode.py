@@ -4,12 +4,22 @@ stay exact when runs explore."""
 import numpy as np
 import pytest
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import (EXPLORE, NO_MOVE, ORACLE, Mover, Reconstruction, ViewCache, run_reconstruction,
-                             run_seed, scene_rng, start_view)
-from nbvdata.shapes import builtin_object
-from nbvdata.scene import Scene
-from nbvdata.sensor import MeshScanner
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.simulation.episode import (
+    EXPLORE,
+    NO_MOVE,
+    ORACLE,
+    Mover,
+    Reconstruction,
+    ViewCache,
+    run_reconstruction,
+    run_seed,
+    scene_rng,
+    start_view,
+)
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 
 SMOKE = ["views.count=60", "sensor.width=44", "sensor.height=36", "coverage.points=2000"]
 

@@ -9,28 +9,45 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 import torch
+import yaml
+from reference_infogain import sampled_scores
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import ConfigError, SimConfig, load_config
-from nbvdata.episode import Reconstruction, ViewCache, scene_rng, start_view
-from nbvdata.sources import MeshSource, mesh_sources
-from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.shards import Shard, shard_files
+from nbvdata.core.config import ConfigError, SimConfig, load_config
+from nbvdata.core.views import farthest_view, spread_view, view_sphere
+from nbvdata.schema.shards import Shard, shard_files
+from nbvdata.simulation.episode import Reconstruction, ViewCache, scene_rng, start_view
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
+from nbvdata.simulation.sources import MeshSource, mesh_sources
 from nbvtrain.cli import main
-from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import (EvaluationReport, coverage_table, evaluate, front_view,
-                               plot_coverage, reconstruct, start_views, summary_markdown)
-from nbvtrain.models import build_model
-from nbvtrain.planners import (PLANNERS, READS, FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner,
-                               RandomPlanner, build_planners, planner_table)
-from nbvtrain.trained_scene import scene_record
-from nbvtrain.train import save_training_state
-from nbvdata.views import farthest_view, spread_view, view_sphere
-
-from reference_infogain import sampled_scores
+from nbvtrain.evaluation.evaluate import (
+    EvaluationReport,
+    coverage_table,
+    evaluate,
+    front_view,
+    plot_coverage,
+    reconstruct,
+    start_views,
+    summary_markdown,
+)
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import build_model
+from nbvtrain.networks.train import save_training_state
+from nbvtrain.networks.trained_scene import scene_record
+from nbvtrain.planners import (
+    PLANNERS,
+    READS,
+    FarthestPlanner,
+    InfoGainPlanner,
+    Observation,
+    OraclePlanner,
+    Planner,
+    RandomPlanner,
+    build_planners,
+    planner_table,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -69,10 +86,10 @@ def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
 def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
     """An untrained scvp-net of the scene's views and a cover-gbm of a few trees on random rows: the
     cover planners' interface only."""
-    from nbvdata.viewfeatures import BASE
-    from nbvtrain._lightgbm import lightgbm
-    from nbvtrain.covermodel import CoverModel
-    from nbvtrain.covernet import CoverNetConfig, network, save_covernet
+    from nbvdata.simulation.viewfeatures import BASE
+    from nbvtrain.ranking._lightgbm import lightgbm
+    from nbvtrain.ranking.covermodel import CoverModel
+    from nbvtrain.ranking.covernet import CoverNetConfig, network, save_covernet
 
     torch.manual_seed(0)
     views = view_sphere(config.views).positions
@@ -549,7 +566,7 @@ def test_information_gain_agrees_with_a_sampled_walk(scene, config):
     probabilities = state.grid.probabilities()
     scores = planner.scores(probabilities)
     rays = np.arange(0, planner._ends.shape[1], 7)  # a seventh of the rays: the reference is slow
-    from nbvdata.grid import ray_information
+    from nbvdata.simulation.grid import ray_information
 
     for view in (0, 9, 19):
         information, known, unknown = sampled_scores(planner, probabilities, view, rays)

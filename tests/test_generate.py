@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from nbvdata.claims import claim, folder_lock, partial_path
 from nbvdata.cli import main
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import FAILURES_FILE, generate, plan_units
-from nbvdata.sources import builtin_sources, mesh_sources, part_sources
-from nbvdata.shapes import builtin_object
-from nbvdata.shards import Shard, ShardError
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.claims import claim, folder_lock, partial_path
+from nbvdata.datasets.generate import FAILURES_FILE, generate, plan_units
+from nbvdata.schema.shards import Shard, ShardError
+from nbvdata.simulation.shapes import builtin_object
+from nbvdata.simulation.sources import builtin_sources, mesh_sources, part_sources
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 DATA = [name for name in ("grids", "grid_palette", "nbv_index", "nbv_pose", "nbv_position", "gains",
@@ -101,7 +101,7 @@ def test_a_local_dask_cluster_gives_the_same_shards(tmp_path, sources, reference
 
 def test_a_scheduler_that_does_not_answer_is_one_line(tmp_path, capsys, monkeypatch):
     pytest.importorskip("dask.distributed", reason="the dask extra is not installed: pip install -e '.[dask]'")
-    import nbvdata.generate as job
+    import nbvdata.datasets.generate as job
     from nbvdata.cli import main
 
     monkeypatch.setattr(job, "SCHEDULER_WAIT", 1)
@@ -120,7 +120,7 @@ def test_the_split_into_shards_does_not_change_the_samples(tmp_path, sources, re
 def test_units_of_one_mesh_share_one_scene_and_the_same_bytes(tmp_path, sources, monkeypatch):
     """runs_per_shard=1: the scene is cast once per mesh in a process, and the shards are the
     bytes of a job that casts it for every unit."""
-    import nbvdata.generate as job
+    import nbvdata.datasets.generate as job
 
     config = _config("generate.workers=1", "generate.runs_per_shard=1", "episode.runs_per_mesh=3")
     build, built = job.Scene.build, []
@@ -307,7 +307,7 @@ def test_mesh_lists_resolve_relative_to_the_list(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# Several processes on one folder (nbvdata.claims)
+# Several processes on one folder (nbvdata.datasets.claims)
 
 COMMAND_SETTINGS = ["generate.runs_per_shard=1", "episode.runs_per_mesh=6"]  # those of _command
 
@@ -381,7 +381,7 @@ def test_two_processes_on_one_folder_share_the_units(tmp_path, single_run):
 HOLDER = """
 import sys, time
 from pathlib import Path
-from nbvdata.claims import claim, partial_path
+from nbvdata.datasets.claims import claim, partial_path
 out, name = Path(sys.argv[1]), sys.argv[2]
 with claim(out, name) as mine:  # as a generate worker holds a unit while it writes the shard
     partial_path(out / name).write_bytes(b"half a shard")
@@ -561,7 +561,7 @@ def test_exploration_and_policy_errors_are_one_line_and_exit_2(tmp_path, capsys,
 
 
 def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
-    from nbvdata.publish import publish
+    from nbvdata.datasets.publish import publish
 
     shards = tmp_path / "explored"
     generate(sources[:1], shards, _config("generate.workers=1", "episode.explore=0.5"))
@@ -573,7 +573,7 @@ def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
         assert "*(absent in this version)*" not in row
     assert [line.split("`")[1] for line in card.splitlines() if "*(absent in this version)*" in line] == [
         "points", "points_count", "reference_points", "surface"]
-    from nbvdata.card import _reproduce
+    from nbvdata.datasets.card import _reproduce
 
     config = _config("episode.explore=0.5").dataset_dict()
     content = {"meshes": [{"source": source.name} for source in builtin_sources()], "config": config,

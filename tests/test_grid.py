@@ -3,14 +3,14 @@ import math
 import numpy as np
 import pytest
 import trimesh
-
 from conftest import MESHES, need
-from nbvdata.config import GridConfig, MeshConfig, SensorConfig, SimConfig, ViewConfig
-from nbvdata.grid import OccupancyGrid
-from nbvdata.mesh import load_mesh
-from nbvdata.sensor import MeshScanner, Scan
-from nbvdata.shapes import builtin_object
-from nbvdata.views import Pose, view_sphere
+
+from nbvdata.core.config import GridConfig, MeshConfig, SensorConfig, SimConfig, ViewConfig
+from nbvdata.core.views import Pose, view_sphere
+from nbvdata.simulation.grid import OccupancyGrid
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.sensor import MeshScanner, Scan
+from nbvdata.simulation.shapes import builtin_object
 
 FAR = SensorConfig().far
 
@@ -181,7 +181,7 @@ def test_the_information_gain_walk_sums_the_unknown_voxels_before_the_first_occu
     voxels, an occupied one, then unknown again: the walk stops at the occupied voxel, so it sums
     the entropy of the three (3 ln 2) and says that the first non-free voxel it met was unknown;
     a box that leaves out voxels 2-3 counts only voxel 4, and with an occupied voxel first it says 1."""
-    from nbvdata.grid import ray_information
+    from nbvdata.simulation.grid import ray_information
 
     n = 8
     grid = np.full((n, n, n), 0.3, dtype=np.float32)

@@ -3,7 +3,7 @@
 import numpy as np
 
 from nbvdata.cli import main
-from nbvdata.gridstats import ALL, CORNER, by_step, grid_statistics
+from nbvdata.datasets.gridstats import ALL, CORNER, by_step, grid_statistics
 
 
 def test_statistics_of_a_hand_made_grid():

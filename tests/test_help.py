@@ -7,7 +7,7 @@ import pytest
 
 import nbvdata.cli
 import nbvtrain.cli
-from nbvtrain.release import released_checkpoint, released_ranker
+from nbvtrain.planners.released import released_checkpoint, released_ranker
 
 
 def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

@@ -14,16 +14,25 @@ import torch
 import trimesh
 
 from nbvdata.cli import main as nbvdata
-from nbvdata.config import SimConfig, load_config
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources, mesh_sources
-from nbvdata.authors import import_legacy
-from nbvdata.manifest import (BUILTIN_LICENSE, NOT_RECORDED, compare, from_ranges, load_manifest, mesh_split,
-                              next_version, random_split, to_ranges)
-from nbvdata.publish import publish
-from nbvdata.shards import Shard
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.authors import import_legacy
+from nbvdata.datasets.generate import generate
+from nbvdata.datasets.publish import publish
+from nbvdata.schema.manifest import (
+    BUILTIN_LICENSE,
+    NOT_RECORDED,
+    compare,
+    from_ranges,
+    load_manifest,
+    mesh_split,
+    next_version,
+    random_split,
+    to_ranges,
+)
+from nbvdata.schema.shards import Shard
+from nbvdata.simulation.sources import builtin_sources, mesh_sources
 from nbvtrain.cli import main as nbvtrain
-from nbvtrain.training_data import load_shards, split_indices
+from nbvtrain.networks.training_data import load_shards, split_indices
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]
@@ -451,7 +460,7 @@ def test_a_grid_network_trains_on_a_version_whose_clouds_alone_differ(clouds, tm
 
 def test_a_refusal_names_a_few_changed_shards_and_counts_the_rest(clouds, tmp_path, monkeypatch):
     """A regeneration that changed every shard is refused in one short line, not one per shard."""
-    import nbvdata.manifest as manifest
+    import nbvdata.schema.manifest as manifest
 
     copy = _copy(clouds.parent.parent / "shards", tmp_path / "copy")
     for path in sorted(copy.glob("*.h5")):

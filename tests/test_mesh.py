@@ -4,10 +4,10 @@ import hashlib
 import numpy as np
 import pytest
 import trimesh
-
 from conftest import MESHES, need
-from nbvdata.config import MeshConfig
-from nbvdata.mesh import MeshError, find_meshes, load_mesh
+
+from nbvdata.core.config import MeshConfig
+from nbvdata.simulation.mesh import MeshError, find_meshes, load_mesh
 
 
 def _write_box(path, transform=None):

@@ -1,4 +1,4 @@
-"""nbvtrain.metrics: the paper's errors and a gain ratio that follows the overlap rule the labels
+"""nbvtrain.networks.metrics: the paper's errors and a gain ratio that follows the overlap rule the labels
 were made with, on hand-made arrays and on generated smoke shards."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.shards import shard_files
-from nbvtrain.training_data import load_shards
-from nbvtrain.metrics import evaluate, gain_ratio
+from nbvdata.schema.shards import shard_files
+from nbvtrain.networks.metrics import evaluate, gain_ratio
+from nbvtrain.networks.training_data import load_shards
 
 ROOT = Path(__file__).resolve().parents[1]
 VIEWS = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])

@@ -9,11 +9,11 @@ import torch
 import yaml
 
 from nbvdata.cli import main as nbvdata
-from nbvdata.config import SimConfig, load_config, to_dict
-from nbvdata.shards import ShardError
+from nbvdata.core.config import SimConfig, load_config, to_dict
+from nbvdata.schema.shards import ShardError
 from nbvtrain.cli import main as nbvtrain
-from nbvtrain.dataset import NBVDataset
-from nbvtrain.trained_scene import SceneMismatch, check_scene, scene_difference
+from nbvtrain.networks.dataset import NBVDataset
+from nbvtrain.networks.trained_scene import SceneMismatch, check_scene, scene_difference
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = str(ROOT / "configs" / "smoke.yaml")

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import torch
 
-from nbvdata.config import SimConfig
-from nbvdata.viewfeatures import BASE, BUNDLE
-from nbvtrain._lightgbm import TEXT_KEY, lightgbm
-from nbvtrain.checkpoint import WEIGHTS_KEY, CheckpointError, load_checkpoint
-from nbvtrain.covermodel import CoverModel, load_cover_model
-from nbvtrain.covernet import CoverNetConfig, load_covernet, network, save_covernet
-from nbvtrain.release import released_folder
-from nbvtrain.viewrank import ViewRanker, load_ranker, scorer
+from nbvdata.core.config import SimConfig
+from nbvdata.simulation.viewfeatures import BASE, BUNDLE
+from nbvtrain.networks.checkpoint import WEIGHTS_KEY, CheckpointError, load_checkpoint
+from nbvtrain.ranking._lightgbm import TEXT_KEY, lightgbm
+from nbvtrain.ranking.covermodel import CoverModel, load_cover_model
+from nbvtrain.ranking.covernet import CoverNetConfig, load_covernet, network, save_covernet
+from nbvtrain.ranking.viewrank import ViewRanker, load_ranker, scorer
+from nbvtrain.planners.released import released_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = {"grid_size": 32, "grid_extent": round(float(SimConfig().scene_grid.extent), 9)}
@@ -154,7 +154,7 @@ def test_damaged_torch_weights_are_refused(tmp_path, make, load):
 def test_an_rl_actor_with_damaged_weights_is_refused(tmp_path):
     import gymnasium
 
-    from nbvtrain.rl import ScoreFeatures, load_actor, save_actor
+    from nbvtrain.networks.rl import ScoreFeatures, load_actor, save_actor
 
     views = load_checkpoint(released_folder() / "nbvscore-fc3.pt")["view_units"].double().numpy()
     space = gymnasium.spaces.Dict({"taken": gymnasium.spaces.MultiBinary(len(views))})
@@ -193,9 +193,9 @@ def test_released_files_record_no_path_of_the_machine_that_made_them():
 
 
 def test_compiled_trees_score_as_lightgbm_does_bit_for_bit():
-    """nbvtrain.trees against LightGBM itself: the released ranker's trees and a model with zero and
+    """nbvtrain.ranking.trees against LightGBM itself: the released ranker's trees and a model with zero and
     NaN missing types, on rows with zeros, NaN and values on the thresholds."""
-    from nbvtrain.trees import compile_trees
+    from nbvtrain.ranking.trees import compile_trees
 
     rng = np.random.default_rng(1)
     head = json.loads((released_folder() / "viewrank.json").read_text())

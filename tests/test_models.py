@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from nbvtrain.models import MODELS, build_model, class_positions, layer_names, parameter_count
+from nbvtrain.networks.models import MODELS, build_model, class_positions, layer_names, parameter_count
 
 # The authors' points_in_sphere.txt (first, second and 14th rows), metres: published facts.
 AUTHORS_CLASS_POINTS = {0: (0.045261, -0.116411, 0.38), 1: (-0.188964, 0.093234, 0.34),

@@ -1,4 +1,4 @@
-"""open3d imports on a machine without a system libusb, through nbvdata._open3d."""
+"""open3d imports on a machine without a system libusb, through nbvdata.simulation._open3d."""
 
 import subprocess
 import sys
@@ -12,13 +12,13 @@ def _python(code: str) -> subprocess.CompletedProcess:
 
 
 def test_a_script_that_imports_open3d_itself_works_after_the_documented_line():
-    """README: `from nbvdata._open3d import open3d` (or `import nbvdata._open3d`) before `import open3d`."""
-    result = _python("import nbvdata._open3d\nimport open3d\nprint(open3d.geometry.TriangleMesh)")
+    """README: `from nbvdata.simulation._open3d import open3d` (or `import nbvdata.simulation._open3d`) before `import open3d`."""
+    result = _python("import nbvdata.simulation._open3d\nimport open3d\nprint(open3d.geometry.TriangleMesh)")
     assert result.returncode == 0, result.stderr
 
 
 def test_a_failed_import_says_how_to_fix_it():
-    result = _python("import sys\nsys.modules['open3d'] = None  # as if it could not load\nimport nbvdata._open3d")
+    result = _python("import sys\nsys.modules['open3d'] = None  # as if it could not load\nimport nbvdata.simulation._open3d")
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("ImportError: cannot import open3d (") and "pip install open3d libusb-package" in last
-    assert "from nbvdata._open3d import open3d" in last
+    assert "from nbvdata.simulation._open3d import open3d" in last

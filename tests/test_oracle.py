@@ -2,14 +2,14 @@
 
 import numpy as np
 import pytest
-
 from conftest import MESHES, need
-from nbvdata.config import SimConfig, load_config
-from nbvdata.coverage import SurfaceCoverage
-from nbvdata.mesh import load_mesh
-from nbvdata.oracle import Scores, ViewOracle, pack_bits, popcount, unpack_bits
-from nbvdata.scene import Scene
-from nbvdata.sensor import MeshScanner
+
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.simulation.coverage import SurfaceCoverage
+from nbvdata.simulation.mesh import load_mesh
+from nbvdata.simulation.oracle import Scores, ViewOracle, pack_bits, popcount, unpack_bits
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sensor import MeshScanner
 
 
 @pytest.mark.parametrize("points", [1, 63, 64, 65, 1000])

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from nbvdata.paths import EXACT_TOUR, distance_matrix, path_length, path_lengths, shortest_tour, tour_cost
+from nbvdata.core.paths import EXACT_TOUR, distance_matrix, path_length, path_lengths, shortest_tour, tour_cost
 
 
 def test_a_segment_that_clears_the_sphere_is_straight():
@@ -60,7 +60,7 @@ def test_the_tour_is_the_brute_force_optimum_on_small_instances(rng, count):
 
 
 def test_at_the_exact_size_the_tour_is_no_longer_than_the_heuristic_s(rng):
-    from nbvdata.paths import _nearest_neighbour, _two_opt
+    from nbvdata.core.paths import _nearest_neighbour, _two_opt
 
     points = rng.normal(size=(EXACT_TOUR + 1, 3))
     points *= 0.4 / np.linalg.norm(points, axis=1, keepdims=True)

@@ -11,18 +11,18 @@ import torch
 import yaml
 from scipy.spatial.transform import Rotation
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.grid import OccupancyGrid
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.views import Pose, scanned_views, view_sphere
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.views import Pose, scanned_views, view_sphere
+from nbvdata.simulation.grid import OccupancyGrid
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 from nbvtrain.cli import main
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import build_model
-from nbvtrain.plan import ObjectFrame, PlanError, draw_plan, plan, up_rotation
-from nbvtrain.predict import NBVPrediction
-from nbvtrain.sensordata import SensorDataError, read_cloud
-from nbvtrain.train import save_training_state
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import build_model
+from nbvtrain.networks.predict import NBVPrediction
+from nbvtrain.networks.train import save_training_state
+from nbvtrain.robot.plan import ObjectFrame, PlanError, draw_plan, plan, up_rotation
+from nbvtrain.robot.sensordata import SensorDataError, read_cloud
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXED_CUBE = ROOT / "configs" / "scene-fixed-cube.yaml"
@@ -499,7 +499,7 @@ def test_spread_takes_the_unscanned_view_the_evaluations_rule_takes(scene, check
     """``--spread W`` answers what ``nbvtrain evaluate --spread W`` would: ``spread_view`` of the
     network's answer on the scene's candidate views, never a view the scans took; a large W is the
     view farthest from the scans."""
-    from nbvdata.views import farthest_view, spread_view
+    from nbvdata.core.views import farthest_view, spread_view
     scans, poses, _ = scene
     scans_file = _write_scans(tmp_path / "robot", scans, poses)
     argv = ["--scans", scans_file, "--center", "0,0,0", "--checkpoint", checkpoint]
@@ -529,7 +529,7 @@ def test_spread_takes_the_unscanned_view_the_evaluations_rule_takes(scene, check
 
 
 def test_a_network_told_the_scans_is_handed_the_scans_sensor_positions(scene, tmp_path, capsys):
-    from nbvtrain.predict import Predictor
+    from nbvtrain.networks.predict import Predictor
     scans, poses, expected = scene
     path = _checkpoint(tmp_path / "scans.pt", "nbvnet-4-3-scans")
     answer = _plan(capsys, "--scans", _write_scans(tmp_path / "robot", scans, poses), "--center", "0,0,0",

@@ -14,21 +14,21 @@ import pytest
 import torch
 import yaml
 
-from nbvdata.config import ConfigError, SimConfig, load_config
-from nbvdata.episode import Reconstruction, scene_rng
-from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import sphere_positions, view_sphere
-from nbvtrain.checkpoint import load_checkpoint
+from nbvdata.core.config import ConfigError, SimConfig, load_config
+from nbvdata.core.views import sphere_positions, view_sphere
+from nbvdata.simulation.episode import Reconstruction, scene_rng
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 from nbvtrain.cli import main
-from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import reconstruct
-from nbvtrain.models import build_model, quarter_turns
+from nbvtrain.evaluation.evaluate import reconstruct
+from nbvtrain.networks.checkpoint import load_checkpoint
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import build_model, quarter_turns
+from nbvtrain.networks.predict import Predictor
+from nbvtrain.networks.scores import pick, standardise
+from nbvtrain.networks.train import save_training_state
+from nbvtrain.networks.trained_scene import scene_record
 from nbvtrain.planners import HybridPlanner, InfoGainPlanner, LearnedPlanner, Observation
-from nbvtrain.predict import Predictor
-from nbvtrain.trained_scene import scene_record
-from nbvtrain.scores import pick, standardise
-from nbvtrain.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"

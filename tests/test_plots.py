@@ -9,8 +9,8 @@ from matplotlib.figure import Figure
 
 pytest.importorskip("torch", reason="the train extra is not installed: pip install -e '.[train]'")
 
-from nbvtrain.evaluate import plot_coverage  # noqa: E402
-from nbvtrain.train import curves_figure  # noqa: E402
+from nbvtrain.evaluation.evaluate import plot_coverage  # noqa: E402
+from nbvtrain.networks.train import curves_figure  # noqa: E402
 
 
 def _history(epochs: int, gain_ratio: bool = True) -> list[dict]:

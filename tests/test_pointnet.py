@@ -8,27 +8,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
-from nbvdata.cloud import ScannedCloud, reduce_cloud
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import Reconstruction, scene_rng
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources
-from nbvdata.scene import Scene
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.shards import Shard
-from nbvdata.views import view_sphere
-from nbvtrain.cli import main
-from nbvtrain.config import TrainConfig
-from nbvtrain.evaluate import evaluate
-from nbvtrain.models import MODELS, PointScoreNet, build_model, layer_names
-from nbvtrain.planners import LearnedPlanner, Observation
-from nbvtrain.predict import Predictor
-from nbvtrain.scores import pick, score_loss
-from nbvtrain.train import fit
-
 from test_plan import _write_scans
+
+from nbvdata.core.cloud import ScannedCloud, reduce_cloud
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.views import view_sphere
+from nbvdata.datasets.generate import generate
+from nbvdata.schema.shards import Shard
+from nbvdata.simulation.episode import Reconstruction, scene_rng
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
+from nbvdata.simulation.sources import builtin_sources
+from nbvtrain.cli import main
+from nbvtrain.evaluation.evaluate import evaluate
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import MODELS, PointScoreNet, build_model, layer_names
+from nbvtrain.networks.predict import Predictor
+from nbvtrain.networks.scores import pick, score_loss
+from nbvtrain.networks.train import fit
+from nbvtrain.planners import LearnedPlanner, Observation
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 PLAN_VIEWS = (3, 17, 40)  # of the smoke scene's 60 views

@@ -17,20 +17,20 @@ import pytest
 torch = pytest.importorskip("torch", reason="the train extra is not installed: pip install -e '.[train]'")
 
 from nbvdata.cli import main  # noqa: E402
-from nbvdata.config import SimConfig, load_config  # noqa: E402
-from nbvdata.episode import Reconstruction, run_seed, scene_rng, start_view  # noqa: E402
-from nbvdata.generate import generate  # noqa: E402
-from nbvdata.sources import builtin_sources
-from nbvdata.policy import PolicySource  # noqa: E402
-from nbvdata.scene import Scene  # noqa: E402
-from nbvdata.shapes import builtin_object  # noqa: E402
-from nbvdata.shards import Shard  # noqa: E402
-from nbvdata.views import view_sphere  # noqa: E402
-from nbvtrain.config import TrainConfig  # noqa: E402
-from nbvtrain.evaluate import reconstruct  # noqa: E402
-from nbvtrain.models import build_model  # noqa: E402
+from nbvdata.core.config import SimConfig, load_config  # noqa: E402
+from nbvdata.core.views import view_sphere  # noqa: E402
+from nbvdata.datasets.generate import generate  # noqa: E402
+from nbvdata.schema.shards import Shard  # noqa: E402
+from nbvdata.simulation.episode import Reconstruction, run_seed, scene_rng, start_view  # noqa: E402
+from nbvdata.simulation.policy import PolicySource  # noqa: E402
+from nbvdata.simulation.scene import Scene  # noqa: E402
+from nbvdata.simulation.shapes import builtin_object  # noqa: E402
+from nbvdata.simulation.sources import builtin_sources
+from nbvtrain.evaluation.evaluate import reconstruct  # noqa: E402
+from nbvtrain.networks.config import TrainConfig  # noqa: E402
+from nbvtrain.networks.models import build_model  # noqa: E402
+from nbvtrain.networks.train import save_training_state  # noqa: E402
 from nbvtrain.planners import LearnedPlanner, Observation  # noqa: E402
-from nbvtrain.train import save_training_state  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -159,7 +159,7 @@ def test_a_folder_holds_the_runs_of_one_policy(tmp_path, checkpoints, capsys):
     assert main([*argv, "--policy", str(checkpoints["nbvnet-3-3"])]) == 0
     assert "6 shards were already there" in capsys.readouterr().out
 
-    from nbvdata.publish import publish
+    from nbvdata.datasets.publish import publish
 
     card = publish(tmp_path, "rollout", "1.0.0", tmp_path.parent / "manifests").path.with_suffix(".md").read_text()
     assert f"the trained planner nbvnet-3-3 epoch 0 (sha256 `{digest}`) chose" in card
@@ -197,16 +197,16 @@ def test_any_package_can_provide_a_policy_through_the_entry_points(tmp_path, mon
     checkpoint provider is one (registered in pyproject.toml), another package's is another."""
     from importlib.metadata import EntryPoint
 
-    import nbvdata.policy
-    from nbvtrain.policy import CheckpointPolicy
+    import nbvdata.simulation.policy
+    from nbvtrain.planners.provider import CheckpointPolicy
 
-    assert nbvdata.policy.load_provider("checkpoint") is CheckpointPolicy  # the installed entry point
+    assert nbvdata.simulation.policy.load_provider("checkpoint") is CheckpointPolicy  # the installed entry point
     (tmp_path / "other_package.py").write_text(PROVIDER)
     monkeypatch.syspath_prepend(str(tmp_path))
-    installed = nbvdata.policy.entry_points
-    fixed = EntryPoint(name="fixed", value="other_package:FixedView", group=nbvdata.policy.GROUP)
-    monkeypatch.setattr(nbvdata.policy, "entry_points",
-                        lambda group: [*installed(group=group), *([fixed] if group == nbvdata.policy.GROUP else [])])
+    installed = nbvdata.simulation.policy.entry_points
+    fixed = EntryPoint(name="fixed", value="other_package:FixedView", group=nbvdata.simulation.policy.GROUP)
+    monkeypatch.setattr(nbvdata.simulation.policy, "entry_points",
+                        lambda group: [*installed(group=group), *([fixed] if group == nbvdata.simulation.policy.GROUP else [])])
     (tmp_path / "view.txt").write_text("5")
     source = PolicySource.from_path(tmp_path / "view.txt", provider="fixed")
     generate(mug, tmp_path / "out", _config("episode.runs_per_mesh=2"), show_progress=False, policy=source)
@@ -227,10 +227,10 @@ def test_any_package_can_provide_a_policy_through_the_entry_points(tmp_path, mon
         assert main([*argv, *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
-    monkeypatch.setattr(nbvdata.policy, "entry_points", lambda group: [])  # a checkout never pip-installed
-    with pytest.raises(nbvdata.policy.PolicyError, match="needs nbvtrain and PyTorch: no installed package registers "
+    monkeypatch.setattr(nbvdata.simulation.policy, "entry_points", lambda group: [])  # a checkout never pip-installed
+    with pytest.raises(nbvdata.simulation.policy.PolicyError, match="needs nbvtrain and PyTorch: no installed package registers "
                        "the 'checkpoint' policy provider"):
-        nbvdata.policy.load_provider("checkpoint")
+        nbvdata.simulation.policy.load_provider("checkpoint")
 
 
 def test_without_torch_generate_runs_and_policy_names_the_install_command(tmp_path, checkpoints):

@@ -1,4 +1,4 @@
-"""The pose checks of ``nbvtrain plan --scans`` (``nbvtrain.sensordata.check_pose``): a
+"""The pose checks of ``nbvtrain plan --scans`` (``nbvtrain.robot.sensordata.check_pose``): a
 world-to-camera pose given as camera-to-world is refused from every viewpoint, also where its
 points happen to lie in front of the mirrored sensor; correct poses are accepted, for noisy
 scans, partial views and filtered clouds too (docs/robot-pose-checks.md; the figures over more
@@ -13,11 +13,11 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from nbvdata.config import SimConfig, ViewConfig
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.views import view_sphere
-from nbvtrain.sensordata import SensorDataError, read_scans
+from nbvdata.core.config import SimConfig, ViewConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
+from nbvtrain.robot.sensordata import SensorDataError, read_scans
 
 VIEWS = view_sphere(ViewConfig(count=60, layout="sphere"))
 VIEWED_FROM = range(0, 60, 5)  # 12 views all round, below the object too
@@ -146,8 +146,8 @@ def test_a_camera_frame_cloud_is_named_as_such_whichever_way_round_its_pose_is(t
     every view, either way round, the message names camera-frame points and the fix for that pose;
     the same clouds in the world frame, with the pose or its inverse, are not taken for them."""
     from nbvtrain.cli import main
-    from nbvtrain.plan import check_world_frame, object_frame
-    from nbvtrain.sensordata import SensorScan
+    from nbvtrain.robot.plan import check_world_frame, object_frame
+    from nbvtrain.robot.sensordata import SensorScan
 
     config = SimConfig()
     k = 0.34 / config.mesh.object_size  # the object's largest side 0.34 m: views 1 m away

@@ -15,14 +15,14 @@ import torch
 import trimesh
 import yaml
 
-from nbvdata.config import SimConfig, to_yaml
-from nbvdata.views import view_sphere
-from nbvtrain.checkpoint import CheckpointError, load_checkpoint
+from nbvdata.core.config import SimConfig, to_yaml
+from nbvdata.core.views import view_sphere
 from nbvtrain.cli import main
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import MODELS, build_model
-from nbvtrain.predict import GridError, Predictor
-from nbvtrain.train import save_training_state
+from nbvtrain.networks.checkpoint import CheckpointError, load_checkpoint
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import MODELS, build_model
+from nbvtrain.networks.predict import GridError, Predictor
+from nbvtrain.networks.train import save_training_state
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -282,7 +282,7 @@ def test_k_and_radius_are_positive_finite_numbers(option, value, tmp_path, capsy
 
 
 def test_the_python_api_refuses_a_scale_that_is_no_length(tmp_path):
-    from nbvdata.config import ConfigError
+    from nbvdata.core.config import ConfigError
 
     checkpoint = _checkpoint(tmp_path / "best.pt")
     for k, radius in ((float("nan"), None), (0.0, None), (1.0, -0.4), (1.0, float("inf"))):

@@ -14,9 +14,19 @@ import numpy as np
 import pytest
 import torch
 
-from nbvdata.files import shown_path
-from nbvtrain.release import (CARD, NETWORKS, REFERENCE, TASKS, ranker_reference_answer, reference_answer,
-                              reference_grid, released_checkpoint, released_files, released_ranker)
+from nbvdata.core.files import shown_path
+from nbvtrain.release import (
+    CARD,
+    NETWORKS,
+    REFERENCE,
+    TASKS,
+    ranker_reference_answer,
+    reference_answer,
+    reference_grid,
+    released_checkpoint,
+    released_files,
+    released_ranker,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDER = ROOT / "nbvtrain" / "released"
@@ -29,7 +39,7 @@ def test_the_released_files_are_in_the_package_and_small():
     assert all(path.is_file() for path in files), "run nbvtrain release (README: The released models)"
     assert sorted([*FOLDER.glob("*.pt"), FOLDER / "viewrank.json"]) == sorted(files)  # nothing else ships
     assert sum(path.stat().st_size for path in files) <= 25 * 10 ** 6
-    from nbvtrain.viewrank import load_ranker
+    from nbvtrain.ranking.viewrank import load_ranker
 
     ranker = load_ranker(released_ranker())
     assert ranker.kind == "viewrank-gbm" and ranker.scene["grid_size"] == 32

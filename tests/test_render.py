@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from nbvdata.config import ViewConfig
-from nbvdata.render import CUT_AWAY, UNKNOWN, draw_state, enclosed, exposed_faces, render_state, tighten
-from nbvdata.views import view_sphere
+from nbvdata.core.config import ViewConfig
+from nbvdata.core.views import view_sphere
+from nbvdata.view.render import CUT_AWAY, UNKNOWN, draw_state, enclosed, exposed_faces, render_state, tighten
 
 
 @pytest.mark.parametrize("block, faces", [((1, 1, 1), 6), ((2, 1, 1), 10), ((3, 3, 3), 54)])
@@ -87,7 +87,7 @@ def test_one_colour_one_meaning_in_every_picture():
     an x, y, z triad; the legend names each."""
     from matplotlib.colors import to_rgb
 
-    from nbvdata.render import AXES_COLOUR, NEXT, RUNNER_UP, SCANNED
+    from nbvdata.view.render import AXES_COLOUR, NEXT, RUNNER_UP, SCANNED
 
     views = view_sphere(ViewConfig(count=40))
     fig = draw_state(_grid(), 0.3, views, highlight=3, others=[5, 7], scanned=[0, 1, 2])
@@ -103,7 +103,7 @@ def test_one_colour_one_meaning_in_every_picture():
 def test_the_views_are_drawn_nearer_so_the_object_fills_the_picture():
     """Views at 0.4 m around a 0.15 m cube would leave the grid a fifth of the width: they are
     drawn at DRAWN_RADIUS grid sides, directions exact, and the legend says how much nearer."""
-    from nbvdata.render import DRAWN_RADIUS
+    from nbvdata.view.render import DRAWN_RADIUS
 
     views = view_sphere(ViewConfig(count=40))
     fig = draw_state(_grid(), 0.15, views)
@@ -187,7 +187,7 @@ def _green_pixels(path) -> int:
     lowest 15 % of its rows)."""
     from matplotlib.colors import to_rgb
 
-    from nbvdata.render import SCANNED
+    from nbvdata.view.render import SCANNED
 
     pixels = imread(path)[..., :3]
     drawing = pixels[:int(0.85 * len(pixels))]
@@ -201,8 +201,8 @@ def test_the_object_hides_a_view_behind_it_and_none_in_front(side, angle, tmp_pa
     A solid block filling the grid, one scanned view ``angle`` degrees off the line of sight, its
     arrow and number over the block in the picture: behind the block none of its green shows; in
     front all of it does, as over an empty grid."""
-    from nbvdata.render import VIEW
-    from nbvdata.views import ViewSet, look_at_rotations
+    from nbvdata.core.views import ViewSet, look_at_rotations
+    from nbvdata.view.render import VIEW
 
     elev, azim = np.radians(VIEW["elev"]), np.radians(VIEW["azim"])
     eye = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])  # to the viewer
@@ -231,8 +231,8 @@ def _red_pixels(path) -> int:
 def test_the_next_view_is_drawn_over_the_object_even_behind_it(tmp_path):
     """Issue 66: plan --png hid the chosen view's red arrow behind the object. A solid block, the
     view straight behind it: its red shows as over an empty grid, and the legend says where it is."""
-    from nbvdata.render import VIEW
-    from nbvdata.views import ViewSet, look_at_rotations
+    from nbvdata.core.views import ViewSet, look_at_rotations
+    from nbvdata.view.render import VIEW
 
     elev, azim = np.radians(VIEW["elev"]), np.radians(VIEW["azim"])
     eye = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])

@@ -1,4 +1,4 @@
-"""Rerun recordings (``nbvdata.rerun``): what each command writes loads back with Rerun's own
+"""Rerun recordings (``nbvdata.view.rerun``): what each command writes loads back with Rerun's own
 reader and holds every entity at every scan; recording changes no shard and no evaluation row; a
 missing viz extra is one line and exit 2."""
 
@@ -19,9 +19,9 @@ pytest.importorskip("rerun", reason="rerun-sdk (the viz extra) is not installed"
 from rerun.chunk import RrdReader  # noqa: E402
 
 from nbvdata.cli import main  # noqa: E402
-from nbvdata.rerun import NO_GAIN, gain_colours  # noqa: E402
-from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvdata.shards import Shard  # noqa: E402
+from nbvdata.schema.shards import Shard  # noqa: E402
+from nbvdata.simulation.shapes import BUILTIN_SHAPES  # noqa: E402
+from nbvdata.view.rerun import NO_GAIN, gain_colours  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -131,7 +131,7 @@ def test_a_killed_writers_half_recordings_are_swept(tmp_path, capsys):
     """A recording worker killed mid-file leaves ``.NAME.rrd.HOST-PID.tmp``: the next job deletes
     those of dead processes on this machine (and a unit's own when it claims the unit), never a
     live process's or another machine's."""
-    from nbvdata.files import host_tag
+    from nbvdata.core.files import host_tag
 
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     dead_pid = int(gone.stdout)

@@ -1,4 +1,4 @@
-"""Learning on the environment (nbvtrain.rl, examples/rl_sb3.py): behaviour cloning learns the
+"""Learning on the environment (nbvtrain.networks.rl, examples/rl_sb3.py): behaviour cloning learns the
 oracle's choice on a tiny scene, collection is seeded and DAgger's states are the learner's, the
 saved actor round-trips and refuses what is not one, MaskablePPO on the score network never
 repeats a view, and the example's policy runs under nbvtrain evaluate."""
@@ -15,12 +15,12 @@ from torch import nn
 
 pytest.importorskip("gymnasium", reason="gymnasium (the [rl] extra) is not installed")
 
-from nbvdata.config import SimConfig, load_config  # noqa: E402
+from nbvdata.core.config import SimConfig, load_config  # noqa: E402
 from nbvdata.env import ReconstructEnv  # noqa: E402
-from nbvdata.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvtrain import rl  # noqa: E402
-from nbvtrain.checkpoint import CheckpointError  # noqa: E402
-from nbvtrain.release import released_checkpoint  # noqa: E402
+from nbvdata.simulation.shapes import BUILTIN_SHAPES  # noqa: E402
+from nbvtrain.networks import rl  # noqa: E402
+from nbvtrain.networks.checkpoint import CheckpointError  # noqa: E402
+from nbvtrain.planners.released import released_checkpoint  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -120,8 +120,8 @@ def test_a_saved_actor_gives_the_same_logits_and_foreign_files_are_refused(env, 
 def test_the_released_score_network_starts_the_policy_at_its_own_choice():
     """Default scene: ScoreFeatures on the released weights with the identity head picks what the
     released network scores highest (the ``scores`` planner's choice)."""
-    from nbvdata.views import view_sphere
-    from nbvtrain.checkpoint import load_checkpoint, model_from
+    from nbvdata.core.views import view_sphere
+    from nbvtrain.networks.checkpoint import load_checkpoint, model_from
     views = view_sphere(SimConfig().views).unit_positions
     space = {"taken": type("Space", (), {"n": len(views)})()}
     features = rl.ScoreFeatures(space, views, released_checkpoint("scores"))

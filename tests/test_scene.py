@@ -6,13 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nbvdata.config import GridConfig, MeshConfig, SimConfig, load_config
-from nbvdata.config import ConfigError
-from nbvdata.episode import ViewCache
-from nbvdata.grid import OccupancyGrid
-from nbvdata.scene import Scene
-from nbvdata.shapes import BUILTIN_SHAPES, builtin_object
-from nbvdata.views import view_sphere
+from nbvdata.core.config import ConfigError, GridConfig, MeshConfig, SimConfig, load_config
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.episode import ViewCache
+from nbvdata.simulation.grid import OccupancyGrid
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 
@@ -78,7 +77,7 @@ def test_the_surface_voxels_hold_what_scans_mark_occupied(tmp_path):
     occupied is one of them but for a sliver crossed at a voxel's face (under 2 %), and the surface
     reaches past what the scans saw (its hidden part: what a surface prior learns)."""
     from nbvdata.cli import main
-    from nbvdata.shards import Shard
+    from nbvdata.schema.shards import Shard
 
     config = SimConfig()
     obj = builtin_object("mug", config.mesh)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from nbvdata.views import scanned_views, sphere_positions
-from nbvtrain.config import TrainConfig
-from nbvtrain.models import MODELS, ScoreNet, build_model, parameter_count
-from nbvtrain.scores import SCORE_LOSSES, near_best_loss, pick, score_loss, targets
+from nbvdata.core.views import scanned_views, sphere_positions
+from nbvtrain.networks.config import TrainConfig
+from nbvtrain.networks.models import MODELS, ScoreNet, build_model, parameter_count
+from nbvtrain.networks.scores import SCORE_LOSSES, near_best_loss, pick, score_loss, targets
 
 
 def test_the_registry_builds_the_score_family():  # the point network's: tests/test_pointnet.py
@@ -123,8 +123,8 @@ def test_scanned_poses_mark_their_candidate_views(rng):
 def test_a_quarter_turn_of_the_grid_turns_each_views_side_alike(rng):
     """nbvscore-3 pools each view's side of the grid; for a grid turned as
     ``rotate_quarter_turns`` turns it, the turned views' sides are the original views' sides."""
-    from nbvtrain.training_data import rotate_quarter_turns
-    from nbvtrain.models import quarter_turns
+    from nbvtrain.networks.models import quarter_turns
+    from nbvtrain.networks.training_data import rotate_quarter_turns
 
     units = sphere_positions(50, 1.0, "hemisphere")
     model = build_model("nbvscore-3", "none", views=units)
@@ -171,7 +171,7 @@ def test_the_near_best_loss_takes_the_nearest_near_best_view():
 
 
 def test_the_near_best_loss_turns_its_views_with_the_grid(rng):
-    from nbvtrain.models import quarter_turns
+    from nbvtrain.networks.models import quarter_turns
 
     units = torch.from_numpy(sphere_positions(40, 1.0, "hemisphere")).float()
     gains = torch.from_numpy(rng.random((4, 40))).float()

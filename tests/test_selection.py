@@ -17,24 +17,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 import yaml
-
-import torch
+from conftest import MESHES, need
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import SimConfig, load_config
-from nbvdata.shards import Shard, view_state
-from nbvdata.generate import generate
-from nbvdata.sources import mesh_sources
-from nbvdata.manifest import ManifestError, load_manifest
-from nbvdata.publish import publish
-from nbvdata.sources import find_part_meshes
-from nbvdata.shapes import BUILTIN_SHAPES
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.datasets.generate import generate
+from nbvdata.datasets.publish import publish
+from nbvdata.schema.manifest import ManifestError, load_manifest
+from nbvdata.schema.shards import Shard, view_state
+from nbvdata.simulation.shapes import BUILTIN_SHAPES
+from nbvdata.simulation.sources import find_part_meshes, mesh_sources
 from nbvtrain.cli import main
-from nbvtrain.training_data import nearest_views
-
-from conftest import MESHES, need
+from nbvtrain.networks.training_data import nearest_views
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from nbvdata.config import SensorConfig
-from nbvdata.sensor import NO_HIT, MeshScanner, camera_rays
-from nbvdata.views import Pose
+from nbvdata.core.config import SensorConfig
+from nbvdata.core.views import Pose
+from nbvdata.simulation.sensor import NO_HIT, MeshScanner, camera_rays
 
 SMALL = SensorConfig(width=40, height=30)
 
@@ -118,9 +118,9 @@ def test_near_and_far_range_limit_returns():
 def test_casting_only_the_rays_near_the_box_changes_no_scan():
     """The bounded cast (default) against casting every ray: the same points and hits, from
     views all round, from inside the box, and for a flat mesh (a box of zero thickness)."""
-    from nbvdata.shapes import builtin_object
-    from nbvdata.config import ViewConfig
-    from nbvdata.views import view_sphere
+    from nbvdata.core.config import ViewConfig
+    from nbvdata.core.views import view_sphere
+    from nbvdata.simulation.shapes import builtin_object
 
     config = SensorConfig(width=88, height=72, noise_std=0.001)
     flat = trimesh.Trimesh([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0, 0.05, 0]], [[0, 1, 2]])
@@ -143,8 +143,8 @@ def test_a_point_on_a_triangle_finds_it_in_its_cell():
     """Every triangle lies in the cells of all points within REACH of it: random points on the
     triangles of a mesh (pushed up to REACH/2 off them) find their triangle in their cell's list,
     and the lists are ascending."""
-    from nbvdata.sensor import REACH, TriangleCells
-    from nbvdata.shapes import builtin_object
+    from nbvdata.simulation.sensor import REACH, TriangleCells
+    from nbvdata.simulation.shapes import builtin_object
 
     mesh = builtin_object("mug").mesh
     vertices, faces = np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces)
@@ -167,8 +167,8 @@ def test_the_cells_narrow_the_search_without_changing_the_answer():
     """The clouds' distances (canonical triangles, outlines passed through) with coarse and fine
     cells are the same; long slivers across the whole object make the grid coarser instead of
     filling every cell they cross."""
-    from nbvdata.sensor import TriangleCells
-    from nbvdata.shapes import builtin_object
+    from nbvdata.simulation.sensor import TriangleCells
+    from nbvdata.simulation.shapes import builtin_object
 
     mesh = builtin_object("mug").mesh
     scanner = MeshScanner(mesh, SensorConfig(width=176, height=144))
@@ -195,7 +195,7 @@ def test_a_ray_at_an_edge_gets_the_same_cloud_point_from_either_triangle():
     """Rays aimed at a crease between two triangles, each reported as hitting one and then the
     other (what two CPUs' Embree kernels may do): the distance to the reported triangle's plane
     differs between the two, the canonical distance does not."""
-    from nbvdata.sensor import TriangleCells, _canonical_distances, plane_distances
+    from nbvdata.simulation.sensor import TriangleCells, _canonical_distances, plane_distances
 
     vertices = np.array([[0, -0.05, 0], [0, 0.05, 0], [-0.04, 0, -0.03], [0.05, 0.01, -0.01]], dtype=np.float32)
     faces = np.array([[0, 1, 2], [1, 0, 3]], dtype=np.uint32)  # a crease along the y axis
@@ -226,7 +226,7 @@ def test_a_sliver_claims_no_hit_behind_its_sharp_corner():
     of the sliver lies within 3.8 um of both long edges' *lines* (0.1 mm x sin 0.5 deg = 0.87 um),
     though 0.1 mm from the sliver: it must not be a candidate, or the cloud point lands 7 um off
     the surface (up to 0.4 mm for such a sliver: the teddy bear of issue 50)."""
-    from nbvdata.sensor import EDGE_TOLERANCE, TriangleCells, _canonical_distances, plane_distances
+    from nbvdata.simulation.sensor import EDGE_TOLERANCE, TriangleCells, _canonical_distances, plane_distances
 
     half = 0.05 * np.tan(np.radians(0.5))
     vertices = np.array([[0, 0, 7e-6], [0.05, -half, 7e-6], [0.05, half, 7e-6],
@@ -250,9 +250,9 @@ def test_scan_clouds_do_not_depend_on_which_triangle_embree_reports():
     missed or the reverse, and their hit points change; the clouds do not, and nearly every cloud
     point lies within micrometres of its hit."""
 
-    from nbvdata.config import ViewConfig
-    from nbvdata.shapes import builtin_object
-    from nbvdata.views import view_sphere
+    from nbvdata.core.config import ViewConfig
+    from nbvdata.core.views import view_sphere
+    from nbvdata.simulation.shapes import builtin_object
 
     mug = builtin_object("mug").mesh
     box = trimesh.creation.box(extents=(0.02, 0.2, 0.03))
@@ -297,7 +297,7 @@ def test_a_ray_that_grazes_an_outline_gets_the_same_cloud_point_whether_it_hits_
     """Rays within 2e-7 m of a box's silhouette edges, in front of a wall: reported as hitting the
     box (one CPU) or as passing beside it to the wall (another), the canonical triangle alone
     keeps two answers; passing the outline through gives both the wall."""
-    from nbvdata.sensor import _canonical_distances, plane_distances
+    from nbvdata.simulation.sensor import _canonical_distances, plane_distances
 
     box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
     wall = trimesh.creation.box(extents=(0.02, 0.6, 0.6))

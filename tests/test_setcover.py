@@ -6,26 +6,34 @@ import os
 import subprocess
 import sys
 import time
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import yaml
 
 from nbvdata.cli import main
-from nbvdata.config import SimConfig, load_config
-from nbvdata.episode import scene_rng
-from nbvdata.generate import generate
-from nbvdata.sources import builtin_sources
-from nbvdata.oracle import ViewOracle, pack_bits, popcount
-from nbvdata.scene import Scene
-from nbvdata.shards import COVER, Shard
-from nbvdata.views import view_sphere
-from nbvtrain.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.views import view_sphere
+from nbvdata.datasets.generate import generate
+from nbvdata.schema.shards import COVER, Shard
+from nbvdata.simulation import setcover
+from nbvdata.simulation.episode import scene_rng
+from nbvdata.simulation.oracle import ViewOracle, pack_bits, popcount
+from nbvdata.simulation.scene import Scene
+from nbvdata.simulation.setcover import (
+    Cover,
+    _candidates,
+    _lexicographic_cover,
+    _minimal_rows,
+    greedy_cover,
+    next_cover,
+    solve_cover,
+)
+from nbvdata.simulation.sources import builtin_sources
+from nbvtrain.evaluation.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
 from nbvtrain.planners import SetCoverPlanner, build_planners
-from nbvdata import setcover
-from nbvdata.setcover import Cover, _candidates, _lexicographic_cover, _minimal_rows, greedy_cover, next_cover, solve_cover
 
 
 def _instance(rng, views: int, points: int, density: float) -> ViewOracle:
@@ -413,7 +421,7 @@ def test_evaluating_without_floors_leaves_them_out_and_changes_no_row():
 
 
 def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, capsys):
-    from nbvdata.publish import publish
+    from nbvdata.datasets.publish import publish
 
     one, _, _ = cover_shards
     assert main(["inspect", str(one)]) == 0
@@ -453,7 +461,7 @@ def test_the_size_may_drop_by_one_after_a_view_outside_the_cover():
 def test_setcover_planner_scans_the_plan_in_the_shortest_tour_order():
     """Plan {0, 1, 2} (views at 90, 180 and 30 degrees round the equator) from a sensor at 0 degrees:
     the shortest tour is 30, 90, 180 degrees - views 2, 0, 1 - though view 0 sees the most."""
-    from nbvdata.views import ViewSet, look_at_rotations
+    from nbvdata.core.views import ViewSet, look_at_rotations
     from nbvtrain.planners import Observation
 
     angles = np.radians([90.0, 180.0, 30.0, 0.0])

@@ -4,13 +4,13 @@ import h5py
 import numpy as np
 import pytest
 
-from nbvdata.config import SimConfig, load_config
-from nbvdata.grid import OccupancyGrid
-from nbvdata.logodds import probability
-from nbvdata.sensor import MeshScanner
-from nbvdata.shapes import builtin_object
-from nbvdata.shards import PER_SAMPLE, GridPalette, Shard, ShardError, write_shard
-from nbvdata.views import view_sphere
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.logodds import probability
+from nbvdata.core.views import view_sphere
+from nbvdata.schema.shards import PER_SAMPLE, GridPalette, Shard, ShardError, write_shard
+from nbvdata.simulation.grid import OccupancyGrid
+from nbvdata.simulation.sensor import MeshScanner
+from nbvdata.simulation.shapes import builtin_object
 
 
 def _arrays(rng, count: int, views: int = 9, n: int = 32) -> dict[str, np.ndarray]:

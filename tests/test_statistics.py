@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nbvtrain.statistics import MIN_OBJECTS, bootstrap_interval, compare, ranking, tertiles
+from nbvtrain.evaluation.statistics import MIN_OBJECTS, bootstrap_interval, compare, ranking, tertiles
 
 
 def test_a_constant_difference_has_a_zero_width_interval_and_wins_everywhere():

@@ -2,7 +2,7 @@
 
 import pytest
 
-from nbvdata.text import plural
+from nbvdata.core.text import plural
 
 
 @pytest.mark.parametrize("count, noun, expected", [

@@ -16,14 +16,14 @@ import pytest
 import torch
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.grid import OccupancyGrid
-from nbvdata.shards import Shard, ShardError
-from nbvdata.views import farthest_view
-from nbvtrain.baselines import Skipped, farthest, mean_direction, mean_vector, nearest_neighbour_indices
+from nbvdata.core.views import farthest_view
+from nbvdata.schema.shards import Shard, ShardError
+from nbvdata.simulation.grid import OccupancyGrid
 from nbvtrain.cli import main
-from nbvtrain.training_data import load_shards, load_view_states, rotate_quarter_turns, split_indices
-from nbvtrain.predict import Predictor
-from nbvtrain.train import _StopOnCtrlC, _StopRequested
+from nbvtrain.networks.baselines import Skipped, farthest, mean_direction, mean_vector, nearest_neighbour_indices
+from nbvtrain.networks.predict import Predictor
+from nbvtrain.networks.train import _StopOnCtrlC, _StopRequested
+from nbvtrain.networks.training_data import load_shards, load_view_states, rotate_quarter_turns, split_indices
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--model", "nbvnet-3-3", "--batch-size", "16", "--threads", "1", "--no-progress"]
@@ -151,7 +151,7 @@ def test_ctrl_c_inside_an_epoch_then_resume_is_the_uninterrupted_run_bit_for_bit
     """A real SIGINT after the stop_at-th batch boundary check (4 batches an epoch here, and one
     check after each epoch's end): inside epoch 1, inside epoch 2, at an epoch's last batch. The
     resumed run ends with the weights, optimiser state and losses of the run never stopped."""
-    import nbvtrain.train as train
+    import nbvtrain.networks.train as train
 
     args = ["--epochs", "3", "--augment", "--dropout", "0.5", *FAST]
     straight, stopped = tmp_path / "straight", tmp_path / "stopped"
@@ -199,7 +199,7 @@ def test_a_loss_that_is_not_finite_stops_fit_in_one_line(shards, tmp_path, capsy
     that epoch saved (last.pt stays the last whole epoch's)."""
     run = tmp_path / "run"
     assert main(["fit", str(shards), "--epochs", "1", "--out", str(run), *FAST]) == 0
-    import nbvtrain.train as train
+    import nbvtrain.networks.train as train
 
     real = train._regression_loss
     monkeypatch.setattr(train, "_regression_loss", lambda *a, **k: real(*a, **k) * float("nan"))
@@ -379,8 +379,8 @@ def test_only_a_score_network_with_views_as_inputs_turns(shards, tmp_path, capsy
 
 
 def test_the_cosine_schedule_falls_from_lr_to_near_zero():
-    from nbvtrain.config import TrainConfig
-    from nbvtrain.train import learning_rate
+    from nbvtrain.networks.config import TrainConfig
+    from nbvtrain.networks.train import learning_rate
 
     config = TrainConfig(lr=1e-3, epochs=10, lr_schedule="cosine")
     rates = [learning_rate(config, epoch) for epoch in range(1, 11)]
@@ -392,8 +392,8 @@ def test_the_cosine_schedule_falls_from_lr_to_near_zero():
 def test_channels_last_training_is_the_same_arithmetic_in_another_order(name):
     """fit lays grid networks out channels-last on the CPU for speed: the step must be the same
     sums in another order (equal to float32 rounding), and the layout must really change."""
-    from nbvtrain.models import build_model
-    from nbvtrain.train import _inputs, _memory_layout
+    from nbvtrain.networks.models import build_model
+    from nbvtrain.networks.train import _inputs, _memory_layout
 
     torch.manual_seed(0)
     views = np.eye(3)[np.arange(8) % 3] * np.where(np.arange(8) < 4, 1, -1)[:, None] if "score" in name else None
@@ -446,7 +446,7 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
         assert 0 <= norm <= 3 ** 0.5 and 0 <= ratio <= 1 and 0 <= resultant <= 1 and 1 <= views <= 10
     assert answers[4].split()[-3] == "1.000"  # the labels are the best views
     # imported data (no gains): refused before anything is written
-    from nbvdata.authors import import_legacy
+    from nbvdata.datasets.authors import import_legacy
     directions = np.random.default_rng(0).normal(size=(6, 3))
     np.save(tmp_path / "volumes.npy", np.full((6, 32 ** 3), 0.5))
     units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
@@ -468,7 +468,13 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
 
 
 def test_scan_closeness_turns_with_the_scans_and_matches_the_view_states(rng):
-    from nbvtrain.models import SCAN_DIRECTIONS, quarter_turns, scan_closeness, turn_closeness, view_state_closeness
+    from nbvtrain.networks.models import (
+        SCAN_DIRECTIONS,
+        quarter_turns,
+        scan_closeness,
+        turn_closeness,
+        view_state_closeness,
+    )
     positions = rng.normal(size=(4, 3)) * 0.4
     closeness = scan_closeness(positions)
     assert closeness.shape == (len(SCAN_DIRECTIONS),) and closeness.dtype == np.float32
@@ -510,7 +516,7 @@ def test_a_network_told_the_scans_starts_as_the_one_it_widens_and_reads_them(sha
     assert not np.allclose(averaged.raw(grid, scans=scans), averaged.raw(grid, scans=scans[:1]), atol=1e-3)
     grid[14:18, 20:24, 14:24] = 0.1  # no longer symmetric
     turned = np.ascontiguousarray(np.rot90(grid, 1, axes=(0, 1)))
-    from nbvtrain.models import quarter_turns
+    from nbvtrain.networks.models import quarter_turns
     answer = averaged.raw(grid, scans=scans)
     np.testing.assert_allclose(averaged.raw(turned, scans=quarter_turns(scans, 1)), quarter_turns(answer, 1),
                                atol=1e-5)

@@ -1,4 +1,4 @@
-"""nbvdata.userarrays: .npy files are read without unpickling anything and never with numpy's
+"""nbvdata.core.userarrays: .npy files are read without unpickling anything and never with numpy's
 advice to allow pickles; grids are checked by one function for nbvdata show and nbvtrain."""
 
 import pickle
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nbvdata.userarrays import GridError, NpyError, check_grids, read_npy
+from nbvdata.core.userarrays import GridError, NpyError, check_grids, read_npy
 
 
 class Marks:
@@ -69,7 +69,7 @@ def test_anything_but_one_plain_array_is_named_and_never_unpickled(kind, message
 def test_a_robots_cloud_file_is_read_the_same_way(tmp_path):
     """nbvtrain plan's .npy clouds: the same refusal, never numpy's advice to allow pickles."""
     pytest.importorskip("torch")
-    from nbvtrain.sensordata import SensorDataError, read_cloud
+    from nbvtrain.robot.sensordata import SensorDataError, read_cloud
 
     (tmp_path / "cloud.npy").write_text("1 2 3\n")
     with pytest.raises(SensorDataError) as refused:

@@ -1,4 +1,4 @@
-"""Per-view features (nbvdata.viewfeatures): every metric by hand on small grids, the walk against
+"""Per-view features (nbvdata.simulation.viewfeatures): every metric by hand on small grids, the walk against
 the information-gain walk, the camera history by hand, and invariance under a quarter turn."""
 
 import math
@@ -6,11 +6,22 @@ import math
 import numpy as np
 import pytest
 
-from nbvdata.config import SimConfig
-from nbvdata.grid import ray_information
-from nbvdata.views import ViewSet, look_at_rotations, sphere_positions, view_sphere
-from nbvdata.viewfeatures import (FEATURES, METRICS, RayBundle, _entropies, _view_sums, _SUMS, area_factor,
-                                  camera_history, occupied_distance, view_features, view_sums)
+from nbvdata.core.config import SimConfig
+from nbvdata.core.views import ViewSet, look_at_rotations, sphere_positions, view_sphere
+from nbvdata.simulation.grid import ray_information
+from nbvdata.simulation.viewfeatures import (
+    _SUMS,
+    FEATURES,
+    METRICS,
+    RayBundle,
+    _entropies,
+    _view_sums,
+    area_factor,
+    camera_history,
+    occupied_distance,
+    view_features,
+    view_sums,
+)
 
 CONFIG = SimConfig()
 
@@ -94,8 +105,9 @@ def test_the_walk_agrees_with_the_information_gain_walk():
     views = ViewSet(positions, look_at_rotations(positions))
     bundle = RayBundle.build(views, CONFIG.scene_grid, CONFIG.sensor, 6, 5)
     ours = view_sums(grid, bundle)[:, _SUMS.index("information")]
-    from nbvdata.sensor import camera_rays
     import dataclasses
+
+    from nbvdata.simulation.sensor import camera_rays
     rays = camera_rays(dataclasses.replace(CONFIG.sensor, width=6, height=5))
     ends = (positions[:, None] + np.matmul(rays[None], views.rotations) * CONFIG.sensor.far).astype(np.float32)
     information = np.zeros(ends.shape[:2])
@@ -177,7 +189,7 @@ def test_the_shadow_and_the_expected_surface_by_hand():
     scan's ray weigh n - k (the fewest steps over the rays); a candidate's ray sums the weights of
     the unknown voxels it passes before its own first occupied voxel. The expected surface: 1 -
     prod(1 - P) over those unknown voxels."""
-    from nbvdata.viewfeatures import _shadow_tags
+    from nbvdata.simulation.viewfeatures import _shadow_tags
 
     n = 4
     grid = np.full((n, n, n), 0.5, dtype=np.float32)
@@ -206,9 +218,9 @@ def test_the_shadow_of_a_scan_lies_behind_what_it_hit():
     """A box scanned from one view: its shadow is unknown space on the far side of the faces seen,
     none in front of them, and a candidate looking from behind the box gains it, one from the front
     none."""
-    from nbvdata.scene import Scene
-    from nbvdata.shapes import builtin_object
-    from nbvdata.viewfeatures import shadow_weights
+    from nbvdata.simulation.scene import Scene
+    from nbvdata.simulation.shapes import builtin_object
+    from nbvdata.simulation.viewfeatures import shadow_weights
 
     obj = builtin_object("step_block", CONFIG.mesh)
     scene = Scene.build(obj, CONFIG, np.random.default_rng(0), threads=1)

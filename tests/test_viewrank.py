@@ -1,4 +1,4 @@
-"""The ranker of candidate views (nbvtrain.viewrank, rankdata, rankfit): fitted on a tiny scene,
+"""The ranker of candidate views (nbvtrain.ranking.viewrank, rankdata, rankfit): fitted on a tiny scene,
 its files round-trip exactly and load without pickle, foreign files are one line, the rows do
 not depend on the workers, its planner never repeats a view on any view set; the hand-crafted
 metrics as planners; LightGBM found without a system OpenMP runtime."""
@@ -6,8 +6,8 @@ metrics as planners; LightGBM found without a system OpenMP runtime."""
 from __future__ import annotations
 
 import ctypes
-import re
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,16 +15,16 @@ import pytest
 import torch
 
 from nbvdata.cli import main as nbvdata_main
-from nbvdata.config import SimConfig, ViewConfig, load_config
-from nbvdata.episode import Reconstruction
-from nbvdata.views import view_sphere
-from nbvdata.viewfeatures import BASE, FEATURES, METRICS
-from nbvtrain.checkpoint import CheckpointError
+from nbvdata.core.config import SimConfig, load_config
+from nbvdata.core.views import view_sphere
+from nbvdata.simulation.episode import Reconstruction
+from nbvdata.simulation.viewfeatures import BASE, FEATURES, METRICS
 from nbvtrain.cli import main as nbvtrain_main
+from nbvtrain.networks.checkpoint import CheckpointError
 from nbvtrain.planners import PLANNERS, MetricPlanner, Observation, OraclePlanner, RankerPlanner, build_planners
-from nbvtrain.rankdata import RankingData, shard_rows
-from nbvtrain.rankfit import part_rows, sources_parts
-from nbvtrain.viewrank import RankerConfig, load_ranker
+from nbvtrain.ranking.rankdata import RankingData, shard_rows
+from nbvtrain.ranking.rankfit import part_rows, sources_parts
+from nbvtrain.ranking.viewrank import RankerConfig, load_ranker
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -166,7 +166,7 @@ def test_the_ranker_plans_on_any_view_set_and_never_repeats(rankers, layout, cou
 
 def test_a_ranker_of_another_grid_is_refused(rankers):
     config = load_config(SimConfig, SMOKE, ["grid.size=16"])
-    from nbvdata.config import ConfigError
+    from nbvdata.core.config import ConfigError
 
     with pytest.raises(ConfigError, match="trained on 32\\^3 grids"):
         RankerPlanner(rankers["viewrank-gbm"], view_sphere(config.views), config)
@@ -190,8 +190,8 @@ def test_every_metric_is_a_registered_planner_that_takes_its_best_unscanned_view
 
 
 def test_the_oracle_takes_farthest_s_view_when_nothing_is_left(tmp_path):
-    from nbvdata.scene import Scene
-    from nbvdata.shapes import builtin_object
+    from nbvdata.simulation.scene import Scene
+    from nbvdata.simulation.shapes import builtin_object
 
     config = load_config(SimConfig, SMOKE)
     scene = Scene.build(builtin_object("pill", config.mesh), config, np.random.default_rng(0))
@@ -202,14 +202,14 @@ def test_the_oracle_takes_farthest_s_view_when_nothing_is_left(tmp_path):
     assert not (scene.oracle.score(state.covered).new > 0).any()
     pose = OraclePlanner(scene.views, config.oracle.min_overlap).next_pose(observation, state)
     units = scene.views.unit_positions
-    from nbvdata.views import farthest_view
+    from nbvdata.core.views import farthest_view
 
     assert np.array_equal(pose.position, scene.views.positions[farthest_view(units, observation.positions)])
     assert farthest_view(units, observation.positions) not in (0, 7)
 
 
 def test_lightgbm_loads_torch_s_openmp_when_the_system_has_none(monkeypatch):
-    import nbvtrain._lightgbm as module
+    import nbvtrain.ranking._lightgbm as module
 
     loaded = []
     real = ctypes.CDLL
@@ -227,7 +227,7 @@ def test_lightgbm_loads_torch_s_openmp_when_the_system_has_none(monkeypatch):
 
 def test_the_ranker_plays_the_environment_and_never_repeats(rankers):
     from nbvdata.env import ReconstructEnv
-    from nbvtrain.viewrank import env_choice
+    from nbvtrain.ranking.viewrank import env_choice
 
     env = ReconstructEnv(config=SMOKE)
     choose = env_choice(load_ranker(rankers["viewrank-gbm"]), env.views, env.config)
@@ -246,7 +246,7 @@ def test_generate_follows_a_ranker_and_labels_every_state(shards, rankers, tmp_p
     """DAgger rounds of a ranker (issue 63): runs move where the ranker would (the viewrank
     provider), every state still labelled by the exhaustive search; a ranker file given to the
     networks' provider says which provider takes it."""
-    from nbvdata.shards import Shard, view_state
+    from nbvdata.schema.shards import Shard, view_state
 
     ranker = rankers["viewrank-gbm"]
     out = tmp_path / "round"
@@ -259,7 +259,7 @@ def test_generate_follows_a_ranker_and_labels_every_state(shards, rankers, tmp_p
             assert json.loads(shard.file.attrs["policy"])["provider"] == "viewrank"
             moves, nexts, last = shard["move"], shard["next_view"], shard["last_view"]
             taken = view_state(shard["run"], shard["step"], last, len(shard["view_positions"]))
-            grids, positions = shard.grids(), shard["view_positions"]
+            grids = shard.grids()
             for i in np.flatnonzero(moves == 2):  # the policy's moves: the ranker's own choice at that state
                 observation = Observation(grids[i], tuple(planner.views[v] for v in np.flatnonzero(taken[i])))
                 assert nexts[i] == planner.next_view(observation)
@@ -283,10 +283,10 @@ def surface_shards(tmp_path_factory) -> Path:
 def test_a_surface_prior_and_a_ranker_that_carries_it(surface_shards, tmp_path, capsys):
     """surface-gbm learns P(surface) of unknown voxels from the shards' surface voxels; a ranker of
     the surface group reads its expected surface and carries the prior in its own file."""
-    from nbvdata.shards import Shard, view_state
-    from nbvdata.viewfeatures import shadow_weights
-    from nbvtrain.rankdata import bundle_for
-    from nbvtrain.surfaceprior import load_surface_prior
+    from nbvdata.schema.shards import Shard, view_state
+    from nbvdata.simulation.viewfeatures import shadow_weights
+    from nbvtrain.ranking.rankdata import bundle_for
+    from nbvtrain.ranking.surfaceprior import load_surface_prior
 
     prior_run, ranker_run = tmp_path / "surface", tmp_path / "ranker"
     assert nbvtrain_main(["fit", str(surface_shards), "--model", "surface-gbm", "--trees", "20", "--workers", "1",

@@ -4,11 +4,11 @@ import zipfile
 
 import numpy as np
 import pytest
+from conftest import DATASET, need
 from scipy.spatial import cKDTree
 
-from conftest import DATASET, need
-from nbvdata.config import ViewConfig
-from nbvdata.views import Pose, angles_to_rotations, look_at_rotations, rotations_to_angles, view_sphere
+from nbvdata.core.config import ViewConfig
+from nbvdata.core.views import Pose, angles_to_rotations, look_at_rotations, rotations_to_angles, view_sphere
 
 
 @pytest.mark.parametrize("layout", ["hemisphere", "sphere"])

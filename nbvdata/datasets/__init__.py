@@ -1,0 +1,1 @@
+"""The jobs on datasets: the generator, publishing and cards, export, the authors' dataset."""

@@ -1,0 +1,1 @@
+"""The simulated reconstructions and their exact labels: mesh, sensor, grid, oracle, scene, episode."""

@@ -1,0 +1,1 @@
+"""Looking at states and runs: pictures and Rerun recordings."""

@@ -1,0 +1,1 @@
+"""Closed-loop evaluation and the field's protocols on a corpus, their statistics and report."""

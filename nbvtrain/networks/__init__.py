@@ -1,0 +1,1 @@
+"""The NBV-net family: networks, training data, fit, checkpoints, prediction, baselines, RL."""
