@@ -50,27 +50,13 @@ TITLE_CHARACTERS = 90  # a title's line at most: what the 7-inch figure holds at
 HALO = [patheffects.withStroke(linewidth=3, foreground="white")]  # the scan numbers readable over the voxels
 
 
-def render_state(
-    probabilities: np.ndarray,
-    extent: float,
-    out: str | Path,
-    views: ViewSet | None = None,
-    highlight: int | None = None,
-    others: Sequence[int] = (),
-    title: str = "",
-    labels: tuple[str, str] = ("next-best-view", "runner-up candidates"),
-    views_label: str = "candidate views",
-    candidates: int | None = None,
-    points: np.ndarray | None = None,
-    scanned: Sequence[int] = (),
-    scanned_label: str = "scanned views",
-) -> Path:
+def render_state(probabilities: np.ndarray, extent: float, out: str | Path, views: ViewSet | None = None,
+                 **drawing) -> Path:
     """Write a PNG of a grid state and the view sphere, cropped to the drawing; returns the path.
 
-    The arguments are those of ``draw_state``.
+    ``drawing``: the keyword arguments of ``draw_state`` (highlight, others, title, labels, ...).
     """
-    return save_cropped(draw_state(probabilities, extent, views, highlight, others, title, labels, views_label,
-                                   candidates, points, scanned, scanned_label), out)
+    return save_cropped(draw_state(probabilities, extent, views, **drawing), out)
 
 
 def save_cropped(fig: Figure, out: str | Path) -> Path:

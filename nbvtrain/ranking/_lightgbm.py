@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import json
 import logging
 import os
 import sys
@@ -52,7 +53,7 @@ except ImportError as error:
 except OSError as error:  # the library found but not loadable
     raise ImportError(f"cannot import lightgbm ({error}); {HINT}") from error
 
-__all__ = ["lightgbm", "load_booster", "text_digest", "TEXT_KEY"]
+__all__ = ["lightgbm", "load_booster", "read_model_json", "text_digest", "TEXT_KEY"]
 
 TEXT_KEY = "lightgbm_sha256"
 """The key under which a model file records the sha256 of its LightGBM text (``text_digest``)."""
@@ -86,6 +87,18 @@ class _Quiet:
 
     def warning(self, message: str) -> None:
         pass
+
+
+def read_model_json(path: Path, what: str, fix: str, error: type[Exception]) -> dict | list:
+    """The JSON content of a model file at ``path`` (``what`` it should be: "a ranker file", ...);
+    ``error`` in one line naming it and ``fix`` when it is missing or no JSON."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: no such file, not {what}; {fix}")
+    try:
+        return json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as failure:
+        raise error(f"{path}: not {what} (not JSON: {type(failure).__name__}); {fix}") from None
 
 
 def load_booster(head: dict, path: Path, fix: str, error: type[Exception]) -> "lightgbm.Booster":

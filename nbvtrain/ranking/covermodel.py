@@ -248,15 +248,10 @@ class CoverModel:
 def load_cover_model(path: str | Path) -> CoverModel:
     """The ``cover-gbm`` model in ``path``; CheckpointError naming the file and the fix for anything else
     (a damaged LightGBM text included: ``nbvtrain.ranking._lightgbm.load_booster``)."""
-    from nbvtrain.ranking._lightgbm import load_booster
+    from nbvtrain.ranking._lightgbm import load_booster, read_model_json
 
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such cover model; {USE_FIT}")
-    try:
-        head = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise CheckpointError(f"{path}: not a cover model (not JSON: {type(error).__name__}); {USE_FIT}") from None
+    head = read_model_json(path, "a cover model", USE_FIT, CheckpointError)
     if not isinstance(head, dict) or head.get("format") != FORMAT or head.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(f"{path}: not a cover model of format {FORMAT!r} {FORMAT_VERSION}; {USE_FIT}")
     missing = [key for key in ("features", "rays", "scene", "threshold", "training", "lightgbm") if key not in head]

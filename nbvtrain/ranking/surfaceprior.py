@@ -170,14 +170,9 @@ def surface_prior_from(head, where: Path) -> SurfacePrior:
 
 def load_surface_prior(path: str | Path) -> SurfacePrior:
     """The surface prior in ``path`` (``surface.json``); CheckpointError in one line for anything else."""
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such surface prior; {USE_FIT}")
-    try:
-        head = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise CheckpointError(f"{path}: not a surface prior (not JSON: {type(error).__name__}); {USE_FIT}") from None
-    return surface_prior_from(head, path)
+    from nbvtrain.ranking._lightgbm import read_model_json
+
+    return surface_prior_from(read_model_json(Path(path), "a surface prior", USE_FIT, CheckpointError), Path(path))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -221,10 +221,9 @@ def load_ranker(path: str | Path) -> ViewRanker:
     if not path.is_file():
         raise CheckpointError(f"{path}: no such ranker file; {USE_FIT}")
     if path.suffix.lower() == ".json":
-        try:
-            head = json.loads(path.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as error:
-            raise CheckpointError(f"{path}: not a ranker file (not JSON: {type(error).__name__}); {USE_FIT}") from None
+        from nbvtrain.ranking._lightgbm import read_model_json
+
+        head = read_model_json(path, "a ranker file", USE_FIT, CheckpointError)
         _check_head(head, path, "viewrank-gbm")
         _check_features(head, path)
         from nbvtrain.ranking._lightgbm import load_booster
