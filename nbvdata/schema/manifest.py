@@ -514,7 +514,7 @@ def next_version(manifests_dir: Path, name: str, level: str) -> str:
 
 def git_state() -> tuple[str | None, bool | None]:
     """(commit, uncommitted changes?) of the checkout this nbvdata runs from; (None, None) if none."""
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]  # the nbvdata folder (this is nbvdata/schema/manifest.py)
 
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True,

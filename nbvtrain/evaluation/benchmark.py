@@ -53,7 +53,7 @@ from nbvtrain.evaluation.evaluate import (
 )
 from nbvtrain.planners import Planner, SnappedPlanner
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the checkout: nbvtrain/evaluation/benchmark.py
 PROTOCOLS = ROOT / "configs" / "protocols"
 BENCH_MESHES = ROOT.parent / "shared" / "meshes" / "bench"
 RUN_METRICS = ("auc", "coverage", "observable_coverage", "path_m", "path_radii", "chamfer", "seconds")
