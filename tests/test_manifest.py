@@ -496,3 +496,17 @@ def test_train_meshes_versions_differ_in_their_clouds_only(older, newer, arrays)
         assert differ <= arrays, (shard["path"], differ)
         clouds_changed += bool(differ)
     assert clouds_changed > 1000  # nearly every shard has a point near an edge, a duplicated face or crossing parts
+
+
+def test_publish_records_the_commit_of_the_checkout_it_runs_from():
+    """From a git checkout the commit is recorded (after the move into folders it was not: the
+    checkout was looked for from nbvdata/schema/)."""
+    import subprocess
+
+    from nbvdata.schema.manifest import git_state
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip("not run from a git checkout: nothing to record")
+    assert git_state()[0] == done.stdout.strip()
