@@ -57,6 +57,23 @@ def _names(text: str) -> tuple[str, ...]:
     return names
 
 
+def _mesh_weights(text: str) -> tuple[tuple[str, float], ...]:
+    """'random_*=0.5,ycb*=2' -> (('random_*', 0.5), ('ycb*', 2.0))."""
+    pairs = []
+    for part in (part.strip() for part in text.split(",") if part.strip()):
+        pattern, _, weight = part.rpartition("=")
+        try:
+            value = float(weight)
+        except ValueError:
+            value = -1.0
+        if not pattern or not (value > 0 and value < float("inf")):
+            raise argparse.ArgumentTypeError(f"{part!r}: give PATTERN=W, W a positive number, e.g. 'random_*=0.5'")
+        pairs.append((pattern, value))
+    if not pairs:
+        raise argparse.ArgumentTypeError(f"{text!r}: give PATTERN=W[,PATTERN=W...]")
+    return tuple(pairs)
+
+
 def _rays(text: str) -> tuple[int, int]:
     """'16x12' -> (16, 12)."""
     try:
@@ -150,6 +167,9 @@ def _add_fit(sub, released: dict[str, str]) -> None:
     fit.add_argument("--trees", type=positive_int, help="viewrank-gbm: boosting rounds at most (default 600)")
     fit.add_argument("--features", type=_names, help="rankers: the columns read, groups (base, metrics, shadow, "
                      "surface) or column names, comma-separated (default base: the first ranker's; docs/viewrank.md)")
+    fit.add_argument("--mesh-weight", type=_mesh_weights, help="viewrank-gbm: PATTERN=W[,PATTERN=W...]: the training "
+                     "states of meshes whose file name matches PATTERN (fnmatch, the first that does) weigh W, others 1, "
+                     "e.g. 'random_*=0.5' (the procedural objects half: the real ones weigh twice as much)")
     fit.add_argument("--surface-prior", type=Path, help="rankers of --features ...,surface: the surface prior "
                      "(surface.json of --model surface-gbm) whose expected surface they read; the ranker carries it")
     fit.add_argument("--label", choices=["graded", "scone", "vin"], help="viewrank-gbm: lambdarank on graded gains "

@@ -38,10 +38,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _fit_cover(args)
     if args.model == SURFACE_MODEL:
         return _fit_surface(args)
-    for flag, of in (("width", "scvp-net"), ("train_states", "scvp-net"), ("features", "viewrank-gbm|viewrank-mlp"),
-                     ("label", "viewrank-gbm"), ("surface_prior", "viewrank-gbm|viewrank-mlp")):
-        if getattr(args, flag, None) is not None:
-            raise ConfigError(f"--{flag.replace('_', '-')}: an option of --model {of} only; leave it out")
+    _only_options_of(args, "network")
     from nbvtrain.networks.config import TrainConfig
     from nbvtrain.networks.train import Interrupted, fit, load_run_config
 
@@ -71,7 +68,37 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 RANKERS = ("viewrank-gbm", "viewrank-mlp")  # nbvtrain.ranking.viewrank.KINDS, without importing it for --help
 RANKER_FLAGS = {"rays": "rays", "sample": "sample", "seed": "seed", "trees": "trees", "lr": "learning_rate",
-                "epochs": "epochs", "threads": "threads", "features": "features", "label": "label"}
+                "epochs": "epochs", "threads": "threads", "features": "features", "label": "label",
+                "mesh_weight": "mesh_weights"}
+
+
+SPECIFIC = ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
+            "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "trees", "epochs",
+            "width", "train_states", "feature_cache", "features", "label", "surface_prior", "mesh_weight")
+"""fit's options that only some kinds of model take (``OPTIONS_OF``)."""
+OPTIONS_OF = {
+    "network": ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
+                "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config", "epochs"),
+    "ranker": ("rays", "sample", "trees", "epochs", "feature_cache", "features", "label", "surface_prior",
+               "mesh_weight"),
+    "surface-gbm": ("trees",),
+    "cover-gbm": ("rays", "sample", "trees", "feature_cache"),
+    "scvp-net": ("epochs", "batch_size", "width", "train_states"),
+}
+"""The options of ``SPECIFIC`` each kind of model takes."""
+
+
+def _only_options_of(args: argparse.Namespace, kind: str) -> None:
+    """ConfigError naming the first option of ``SPECIFIC`` given that ``kind`` (``OPTIONS_OF``) does
+    not take, and the models that do; for the models validated on whole meshes, ``--split random`` too."""
+    for flag in SPECIFIC:
+        if flag not in OPTIONS_OF[kind] and getattr(args, flag, None) not in (None, False, []):
+            takers = [other for other, flags in OPTIONS_OF.items() if flag in flags]
+            what = "a network" if kind == "network" else f"{args.model}"
+            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {what} (but of {', '.join(takers)}); "
+                              "leave it out")
+    if kind != "network" and args.split == "random":
+        raise ConfigError(f"--split random: {args.model} is validated on whole meshes (the mesh split); leave --split out")
 
 
 def _fit_ranker(args: argparse.Namespace) -> int:
@@ -79,12 +106,7 @@ def _fit_ranker(args: argparse.Namespace) -> int:
     from nbvtrain.ranking.rankfit import DEFAULT_CACHE, describe, fit_ranker
     from nbvtrain.ranking.viewrank import RankerConfig
 
-    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
-                 "batch_size", "lr_schedule", "near_best", "mixed_scenes", "config", "width", "train_states"):
-        if getattr(args, flag, None) not in (None, False, []):
-            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of a ranker ({args.model}); leave it out")
-    if args.split == "random":
-        raise ConfigError("--split random: a ranker is validated on whole meshes (the mesh split); leave --split out")
+    _only_options_of(args, "ranker")
     settings = {key: getattr(args, attr) for attr, key in RANKER_FLAGS.items() if getattr(args, attr) is not None}
     config = RankerConfig(model=args.model, **settings)
     out = args.out or Path("runs") / args.model
@@ -105,14 +127,7 @@ def _fit_surface(args: argparse.Namespace) -> int:
     """``fit --model surface-gbm``: a surface prior on shards with the meshes' surface voxels."""
     from nbvtrain.ranking.surfaceprior import SurfacePriorConfig, fit_surface_prior
 
-    allowed = ("seed", "trees", "lr", "threads", "workers")
-    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
-                 "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "epochs", "batch_size",
-                 "width", "train_states", "feature_cache", "features", "label", "surface_prior"):
-        if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
-            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
-    if args.split == "random":
-        raise ConfigError(f"--split random: {args.model} is validated on whole meshes (the mesh split); leave --split out")
+    _only_options_of(args, args.model)
     settings = {key: getattr(args, attr) for attr, key in (("seed", "seed"), ("trees", "trees"), ("lr", "learning_rate"),
                                                            ("threads", "threads")) if getattr(args, attr) is not None}
     out = args.out or Path("runs") / args.model
@@ -127,15 +142,7 @@ def _fit_surface(args: argparse.Namespace) -> int:
 
 def _fit_cover(args: argparse.Namespace) -> int:
     """``fit --model cover-gbm|scvp-net``: a set-cover model on manifests or shard folders with covers."""
-    allowed = {"cover-gbm": ("rays", "sample", "seed", "trees", "lr", "threads", "workers", "feature_cache"),
-               "scvp-net": ("seed", "epochs", "batch_size", "lr", "threads", "width", "train_states")}[args.model]
-    for flag in ("resume", "add_train", "init", "augment", "dropout", "dropout_from", "score_loss", "regression_loss",
-                 "lr_schedule", "near_best", "mixed_scenes", "config", "rays", "sample", "trees", "epochs",
-                 "batch_size", "width", "train_states", "feature_cache", "features", "label", "surface_prior"):
-        if flag not in allowed and getattr(args, flag, None) not in (None, False, []):
-            raise ConfigError(f"--{flag.replace('_', '-')}: not an option of {args.model}; leave it out")
-    if args.split == "random":
-        raise ConfigError(f"--split random: {args.model} is validated on whole meshes (the mesh split); leave --split out")
+    _only_options_of(args, args.model)
     out = args.out or Path("runs") / args.model
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     started = time.perf_counter()

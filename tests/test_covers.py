@@ -117,7 +117,7 @@ def test_fit_refuses_options_of_other_models(shards, capsys):
     assert nbvtrain_main(["fit", str(shards), "--model", "cover-gbm", "--epochs", "3"]) == 2
     assert "--epochs: not an option of cover-gbm" in capsys.readouterr().err
     assert nbvtrain_main(["fit", str(shards), "--model", "nbvnet-4-5", "--width", "3"]) == 2
-    assert "--width: an option of --model scvp-net only" in capsys.readouterr().err
+    assert "--width: not an option of a network (but of scvp-net)" in capsys.readouterr().err
 
 
 class FixedCover(CoverPlanner):

@@ -319,3 +319,26 @@ def test_a_surface_prior_and_a_ranker_that_carries_it(surface_shards, tmp_path, 
     (tmp_path / "damaged.json").write_text(json.dumps(head | {"surface_prior": json.dumps(carried)}))
     with pytest.raises(CheckpointError, match="damaged"):
         load_ranker(tmp_path / "damaged.json")
+
+
+def test_mesh_weights_weigh_the_states_of_the_meshes_they_name(shards, tmp_path, capsys):
+    """--mesh-weight PATTERN=W: the training states of meshes whose file name matches weigh W (the
+    first pattern that matches), others 1; a weight that is no positive number is refused."""
+    from nbvtrain.ranking.rankfit import state_weights
+
+    train, _, _ = sources_parts([shards])
+    rows = part_rows(train, RankerConfig(rays=(4, 3), sample=8), 8, None, 1, False, "train")
+    weights = state_weights(rows, train, (("builtin:mug*", 3.0), ("*", 0.5)))
+    from nbvdata.schema.shards import Shard
+
+    mug = set()
+    for part in train:
+        with Shard(part.path) as shard:
+            mug |= {mesh["id"] for mesh in shard.info.meshes if mesh["source"].startswith("builtin:mug")}
+    assert set(weights[np.isin(rows.mesh_ids, list(mug))]) <= {3.0} and set(weights) <= {3.0, 0.5}
+    assert nbvtrain_main(["fit", str(shards), "--model", "viewrank-gbm", "--mesh-weight", "builtin:mug=3",
+                          "--out", str(tmp_path / "weighted"), *FAST, "--trees", "5"]) == 0
+    assert load_ranker(tmp_path / "weighted" / "viewrank.json").training["mesh_weights"] == [["builtin:mug", 3.0]]
+    with pytest.raises(SystemExit):
+        nbvtrain_main(["fit", str(shards), "--model", "viewrank-gbm", "--mesh-weight", "random_*=-1"])
+    assert "W a positive number" in capsys.readouterr().err

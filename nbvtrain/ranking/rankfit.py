@@ -18,6 +18,7 @@ The run folder ``out`` holds the model (``viewrank.json`` or ``viewrank.pt``), `
 from __future__ import annotations
 
 import csv
+import fnmatch
 import functools
 import json
 import time
@@ -29,6 +30,7 @@ import yaml
 
 from nbvdata.core.config import ConfigError
 from nbvdata.core.text import plural
+from nbvdata.schema.shards import Shard
 from nbvdata.simulation.viewfeatures import FEATURE_GROUPS
 from nbvtrain.ranking.rankdata import (
     Part,
@@ -116,7 +118,8 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
     val = part_rows(val_parts, config, 0, cache, workers, progress, "val", prior).labelled(target)
     featured = time.perf_counter()
     scene = grid_scene(train_parts[0].path)
-    report = (fit_gbm if config.model == "viewrank-gbm" else fit_mlp)(train, val, config, scene)
+    weights = state_weights(train, train_parts, config.mesh_weights) if config.mesh_weights else None
+    report = (fit_gbm if config.model == "viewrank-gbm" else fit_mlp)(train, val, config, scene, weights)
     report.ranker.prior = _prior(prior)
     path = out / ("viewrank.json" if config.model == "viewrank-gbm" else "viewrank.pt")
     report.ranker.training |= {"target": target, "sources": records}
@@ -139,6 +142,23 @@ def fit_ranker(items: list[Path], config: RankerConfig, out: Path, target: str =
             writer.writeheader()
             writer.writerows(report.history)
     return metrics
+
+
+def state_weights(data: RankingData, parts: list[Part], patterns: tuple[tuple[str, float], ...]) -> np.ndarray:
+    """(S,) float64 each state's weight: that of the first (file-name pattern, weight) whose pattern
+    (``fnmatch``) its mesh's source matches (the file name of a path), else 1; the sources are read
+    from the shards' ``meshes`` attribute."""
+    sources: dict[str, str] = {}
+    for part in parts:
+        with Shard(part.path) as shard:
+            sources.update({mesh["id"]: Path(str(mesh["source"])).name for mesh in shard.info.meshes})
+
+    def weight(mesh_id: str) -> float:
+        source = sources.get(mesh_id, "")
+        return next((float(w) for pattern, w in patterns if fnmatch.fnmatch(source, pattern)), 1.0)
+
+    by_mesh = {mesh_id: weight(mesh_id) for mesh_id in np.unique(data.mesh_ids)}
+    return np.array([by_mesh[mesh_id] for mesh_id in data.mesh_ids], dtype=np.float64)
 
 
 def difficulty_thirds(data: RankingData) -> np.ndarray:

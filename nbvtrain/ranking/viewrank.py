@@ -62,6 +62,10 @@ class RankerConfig:
     """The columns it reads: groups of ``nbvdata.simulation.viewfeatures.FEATURE_GROUPS`` or column names."""
     label: str = "graded"
     """gbm: what it learns (``LABELS``)."""
+    mesh_weights: tuple[tuple[str, float], ...] = ()
+    """gbm: (file-name pattern, weight) pairs: a training state of a mesh whose source matches a
+    pattern (``fnmatch``, the first that does) weighs that much, others 1 (e.g. the procedural
+    ``random_*`` less, so that the real meshes weigh more)."""
     sample: int = 64
     """Training rows per state at most (its best quarter and a random rest); validation keeps all."""
     seed: int = 0
@@ -362,9 +366,11 @@ def per_layout(data: RankingData, scores: np.ndarray) -> dict[str, float]:
     return {layout: data.gain_ratio(scores, data.layouts == layout) for layout in sorted(set(data.layouts.tolist()))}
 
 
-def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: dict) -> FitReport:
+def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: dict,
+            weights: np.ndarray | None = None) -> FitReport:
     """LightGBM on ``train``'s ``config.columns`` with ``config.label``'s objective (``LABELS``:
-    lambdarank, or SCONE's L1 regression), the round with the best validation gain ratio kept."""
+    lambdarank, or SCONE's L1 regression), the round with the best validation gain ratio kept;
+    ``weights`` (S,): each training state's weight (``RankerConfig.mesh_weights``; None: 1)."""
     from nbvtrain.ranking._lightgbm import lightgbm
 
     started = time.perf_counter()
@@ -381,8 +387,9 @@ def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: d
     else:
         labels = grades(train, config.grades) if config.label == "graded" else vin_grades(train, config.grades)
         groups = {"group": train.sizes}
+    rows = {} if weights is None else {"weight": np.repeat(np.asarray(weights, dtype=np.float64), train.sizes)}
     train_set = lightgbm.Dataset(train.features[:, columns], label=labels, feature_name=config.columns,
-                                 free_raw_data=False, **groups)
+                                 free_raw_data=False, **groups, **rows)
     val_set = lightgbm.Dataset(val.features[:, columns], label=grades(val, config.grades), reference=train_set,
                                **({"group": val.sizes} if groups else {}))
     history: list[dict] = []
@@ -405,11 +412,14 @@ def fit_gbm(train: RankingData, val: RankingData, config: RankerConfig, scene: d
     return FitReport(ranker, val.gain_ratio(scores), per_layout(val, scores), history, time.perf_counter() - started)
 
 
-def fit_mlp(train: RankingData, val: RankingData, config: RankerConfig, scene: dict) -> FitReport:
+def fit_mlp(train: RankingData, val: RankingData, config: RankerConfig, scene: dict,
+            weights: np.ndarray | None = None) -> FitReport:
     """The torch scorer with the listwise loss (module docstring), the epoch with the best
     validation gain ratio kept."""
     import torch
 
+    if weights is not None:
+        raise ConfigError("--mesh-weight: an option of viewrank-gbm only")
     started = time.perf_counter()
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
