@@ -248,8 +248,8 @@ def main() -> None:
     logits = actor_logits(policy)
     results = {"start": record("start", 0, logits)}
     if args.ranker != "none":  # the ranker of per-view features (docs/viewrank.md): the bar, trained on no RL
-        from nbvtrain.ranking.viewrank import env_choice, load_ranker
         from nbvtrain.planners.released import NoReleasedModel, released_ranker
+        from nbvtrain.ranking.viewrank import env_choice, load_ranker
 
         try:
             ranker = load_ranker(released_ranker() if args.ranker == "released" else Path(args.ranker))

@@ -19,14 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata import __version__
-from nbvdata.commandline import (
-    Parser,
-    exit_quietly_when_stdout_closes,
-    fraction,
-    non_negative_int,
-    positive_int,
-    run_command,
-)
+from nbvdata.commandline import (Parser, exit_quietly_when_stdout_closes, fraction, non_negative_int, positive_int,
+                                 run_command)
 from nbvdata.core.config import ConfigError, SimConfig, load_config
 from nbvdata.core.errors import UserError
 from nbvdata.core.text import plural, some_names

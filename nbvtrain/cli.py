@@ -13,32 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from nbvdata.commandline import (
-    Integer,
-    Number,
-    Parser,
-    exit_quietly_when_stdout_closes,
-    fraction,
-    non_negative_float,
-    non_negative_int,
-    positive_float,
-    positive_int,
-    run_command,
-)
+from nbvdata.commandline import (Integer, Number, Parser, exit_quietly_when_stdout_closes, fraction, non_negative_float,
+                                 non_negative_int, positive_float, positive_int, run_command)
 from nbvtrain import __version__
-from nbvtrain.commands import (
-    COVER_MODELS,
-    INSTALL_TORCH,
-    RANKERS,
-    SURFACE_MODEL,
-    cmd_baselines,
-    cmd_benchmark,
-    cmd_evaluate,
-    cmd_fit,
-    cmd_plan,
-    cmd_predict,
-    cmd_release,
-)
+from nbvtrain.commands import (COVER_MODELS, INSTALL_TORCH, RANKERS, SURFACE_MODEL, cmd_baselines, cmd_benchmark,
+                               cmd_evaluate, cmd_fit, cmd_plan, cmd_predict, cmd_release)
 
 
 def _cover_model_flags(parser: argparse.ArgumentParser) -> None:

@@ -179,8 +179,8 @@ def _fit_cover(args: argparse.Namespace) -> int:
 def cmd_predict(args: argparse.Namespace) -> int:
     """Print the NBV pose a checkpoint predicts for a grid (.npy) or a shard sample, as JSON."""
     from nbvtrain.networks.predict import GridError, Predictor, prediction_dict
-    from nbvtrain.ranking.viewrank import is_ranker_file
     from nbvtrain.planners.released import released_ranker
+    from nbvtrain.ranking.viewrank import is_ranker_file
 
     checkpoint = args.checkpoint or released_ranker()  # the default of every command: docs/released-models.md
     if is_ranker_file(checkpoint):

@@ -30,15 +30,9 @@ import yaml
 
 from nbvdata.core.config import ConfigError
 from nbvdata.core.files import shown_path
-from nbvtrain.planners.released import (  # noqa: F401  (the lookups' old path: nbvtrain.release)
-    PASS_INSTEAD,
-    REFERENCE,
-    NoReleasedModel,
-    released_checkpoint,
-    released_files,
-    released_folder,
-    released_ranker,
-)
+from nbvtrain.planners.released import (PASS_INSTEAD,  # noqa: F401  (the lookups' old path: nbvtrain.release)
+                                        REFERENCE, NoReleasedModel, released_checkpoint, released_files,
+                                        released_folder, released_ranker)
 
 NETWORKS = ("scores", "regression")
 """The released networks' tasks (their checkpoints: torch files, ``released_checkpoint``)."""

@@ -17,16 +17,8 @@ from nbvdata.simulation.episode import scene_rng
 from nbvdata.simulation.scene import Scene
 from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 from nbvtrain.cli import main
-from nbvtrain.evaluation.benchmark import (
-    PROTOCOLS,
-    Protocol,
-    RunMeasure,
-    SurfaceMeasure,
-    auc,
-    load_protocol,
-    protocol_names,
-    scans_to,
-)
+from nbvtrain.evaluation.benchmark import (PROTOCOLS, Protocol, RunMeasure, SurfaceMeasure, auc, load_protocol,
+                                           protocol_names, scans_to)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["sensor.width=44", "sensor.height=36", "coverage.points=2000"]

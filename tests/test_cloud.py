@@ -11,15 +11,8 @@ from conftest import MESHES, SHARED, need
 
 from nbvdata.cli import main
 from nbvdata.core.cloud import ScannedCloud, farthest_points, farthest_points_reference, reduce_cloud
-from nbvdata.core.config import (
-    FIXED_LAYOUT_COUNTS,
-    ConfigError,
-    MeshConfig,
-    SensorConfig,
-    SimConfig,
-    ViewConfig,
-    load_config,
-)
+from nbvdata.core.config import (FIXED_LAYOUT_COUNTS, ConfigError, MeshConfig, SensorConfig, SimConfig, ViewConfig,
+                                 load_config)
 from nbvdata.core.views import FIXED_LAYOUTS, Y_UP_TO_Z_UP, pc_nbv_33, view_sphere
 from nbvdata.datasets.generate import generate
 from nbvdata.schema.shards import Shard, view_state

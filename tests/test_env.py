@@ -24,7 +24,7 @@ from nbvdata.schema.shards import Shard  # noqa: E402
 from nbvdata.simulation.episode import Reconstruction, start_view  # noqa: E402
 from nbvdata.simulation.mesh import MeshError  # noqa: E402
 from nbvdata.simulation.shapes import BUILTIN_SHAPES  # noqa: E402
-from nbvdata.simulation.sources import builtin_sources
+from nbvdata.simulation.sources import builtin_sources  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"

@@ -5,18 +5,8 @@ import numpy as np
 import pytest
 
 from nbvdata.core.config import SimConfig, load_config
-from nbvdata.simulation.episode import (
-    EXPLORE,
-    NO_MOVE,
-    ORACLE,
-    Mover,
-    Reconstruction,
-    ViewCache,
-    run_reconstruction,
-    run_seed,
-    scene_rng,
-    start_view,
-)
+from nbvdata.simulation.episode import (EXPLORE, NO_MOVE, ORACLE, Mover, Reconstruction, ViewCache, run_reconstruction,
+                                        run_seed, scene_rng, start_view)
 from nbvdata.simulation.scene import Scene
 from nbvdata.simulation.sensor import MeshScanner
 from nbvdata.simulation.shapes import builtin_object

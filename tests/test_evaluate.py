@@ -22,32 +22,14 @@ from nbvdata.simulation.scene import Scene
 from nbvdata.simulation.shapes import BUILTIN_SHAPES, builtin_object
 from nbvdata.simulation.sources import MeshSource, mesh_sources
 from nbvtrain.cli import main
-from nbvtrain.evaluation.evaluate import (
-    EvaluationReport,
-    coverage_table,
-    evaluate,
-    front_view,
-    plot_coverage,
-    reconstruct,
-    start_views,
-    summary_markdown,
-)
+from nbvtrain.evaluation.evaluate import (EvaluationReport, coverage_table, evaluate, front_view, plot_coverage,
+                                          reconstruct, start_views, summary_markdown)
 from nbvtrain.networks.config import TrainConfig
 from nbvtrain.networks.models import build_model
 from nbvtrain.networks.train import save_training_state
 from nbvtrain.networks.trained_scene import scene_record
-from nbvtrain.planners import (
-    PLANNERS,
-    READS,
-    FarthestPlanner,
-    InfoGainPlanner,
-    Observation,
-    OraclePlanner,
-    Planner,
-    RandomPlanner,
-    build_planners,
-    planner_table,
-)
+from nbvtrain.planners import (PLANNERS, READS, FarthestPlanner, InfoGainPlanner, Observation, OraclePlanner, Planner,
+                               RandomPlanner, build_planners, planner_table)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"

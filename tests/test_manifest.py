@@ -18,17 +18,8 @@ from nbvdata.core.config import SimConfig, load_config
 from nbvdata.datasets.authors import import_legacy
 from nbvdata.datasets.generate import generate
 from nbvdata.datasets.publish import publish
-from nbvdata.schema.manifest import (
-    BUILTIN_LICENSE,
-    NOT_RECORDED,
-    compare,
-    from_ranges,
-    load_manifest,
-    mesh_split,
-    next_version,
-    random_split,
-    to_ranges,
-)
+from nbvdata.schema.manifest import (BUILTIN_LICENSE, NOT_RECORDED, compare, from_ranges, load_manifest, mesh_split,
+                                     next_version, random_split, to_ranges)
 from nbvdata.schema.shards import Shard
 from nbvdata.simulation.sources import builtin_sources, mesh_sources
 from nbvtrain.cli import main as nbvtrain

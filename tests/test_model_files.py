@@ -19,11 +19,11 @@ import torch
 from nbvdata.core.config import SimConfig
 from nbvdata.simulation.viewfeatures import BASE, BUNDLE
 from nbvtrain.networks.checkpoint import WEIGHTS_KEY, CheckpointError, load_checkpoint
+from nbvtrain.planners.released import released_folder
 from nbvtrain.ranking._lightgbm import TEXT_KEY, lightgbm
 from nbvtrain.ranking.covermodel import CoverModel, load_cover_model
 from nbvtrain.ranking.covernet import CoverNetConfig, load_covernet, network, save_covernet
 from nbvtrain.ranking.viewrank import ViewRanker, load_ranker, scorer
-from nbvtrain.planners.released import released_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = {"grid_size": 32, "grid_extent": round(float(SimConfig().scene_grid.extent), 9)}

@@ -29,13 +29,14 @@ def test_torch_is_an_optional_extra():
 def test_every_nbvdata_module_imports_without_torch():
     done = _python(
         "import pkgutil, importlib, nbvdata\n"
-        "names = [m.name for m in pkgutil.iter_modules(nbvdata.__path__, 'nbvdata.') if m.name != 'nbvdata.__main__']\n"
+        "names = [m.name for m in pkgutil.walk_packages(nbvdata.__path__, 'nbvdata.') if m.name != 'nbvdata.__main__']\n"
         "for name in names:\n"
         "    importlib.import_module(name)\n"
         "assert sys.modules['torch'] is None\n"
         "print(len(names))\n")
     assert done.returncode == 0, done.stderr
-    assert int(done.stdout) == len(list((ROOT / "nbvdata").glob("*.py"))) - 2  # all but __init__, __main__
+    files = list((ROOT / "nbvdata").rglob("*.py"))
+    assert int(done.stdout) == len(files) - 2  # every module and folder, all but nbvdata's own __init__ and __main__
 
 
 @pytest.mark.parametrize("argv", [["predict", "g.npy", "--checkpoint", "best.pt"], ["--help"], []])

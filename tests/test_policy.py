@@ -25,7 +25,7 @@ from nbvdata.simulation.episode import Reconstruction, run_seed, scene_rng, star
 from nbvdata.simulation.policy import PolicySource  # noqa: E402
 from nbvdata.simulation.scene import Scene  # noqa: E402
 from nbvdata.simulation.shapes import builtin_object  # noqa: E402
-from nbvdata.simulation.sources import builtin_sources
+from nbvdata.simulation.sources import builtin_sources  # noqa: E402
 from nbvtrain.evaluation.evaluate import reconstruct  # noqa: E402
 from nbvtrain.networks.config import TrainConfig  # noqa: E402
 from nbvtrain.networks.models import build_model  # noqa: E402

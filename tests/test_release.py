@@ -15,18 +15,8 @@ import pytest
 import torch
 
 from nbvdata.core.files import shown_path
-from nbvtrain.release import (
-    CARD,
-    NETWORKS,
-    REFERENCE,
-    TASKS,
-    ranker_reference_answer,
-    reference_answer,
-    reference_grid,
-    released_checkpoint,
-    released_files,
-    released_ranker,
-)
+from nbvtrain.release import (CARD, NETWORKS, REFERENCE, TASKS, ranker_reference_answer, reference_answer,
+                              reference_grid, released_checkpoint, released_files, released_ranker)
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDER = ROOT / "nbvtrain" / "released"

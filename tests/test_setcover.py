@@ -22,15 +22,8 @@ from nbvdata.simulation import setcover
 from nbvdata.simulation.episode import scene_rng
 from nbvdata.simulation.oracle import ViewOracle, pack_bits, popcount
 from nbvdata.simulation.scene import Scene
-from nbvdata.simulation.setcover import (
-    Cover,
-    _candidates,
-    _lexicographic_cover,
-    _minimal_rows,
-    greedy_cover,
-    next_cover,
-    solve_cover,
-)
+from nbvdata.simulation.setcover import (Cover, _candidates, _lexicographic_cover, _minimal_rows, greedy_cover,
+                                         next_cover, solve_cover)
 from nbvdata.simulation.sources import builtin_sources
 from nbvtrain.evaluation.evaluate import FLOOR_COLUMNS, evaluate, scans_table, scans_to, write_outputs
 from nbvtrain.planners import SetCoverPlanner, build_planners

@@ -468,13 +468,8 @@ def test_the_near_best_loss_trains_resumes_exactly_and_needs_gains(shards, tmp_p
 
 
 def test_scan_closeness_turns_with_the_scans_and_matches_the_view_states(rng):
-    from nbvtrain.networks.models import (
-        SCAN_DIRECTIONS,
-        quarter_turns,
-        scan_closeness,
-        turn_closeness,
-        view_state_closeness,
-    )
+    from nbvtrain.networks.models import (SCAN_DIRECTIONS, quarter_turns, scan_closeness, turn_closeness,
+                                          view_state_closeness)
     positions = rng.normal(size=(4, 3)) * 0.4
     closeness = scan_closeness(positions)
     assert closeness.shape == (len(SCAN_DIRECTIONS),) and closeness.dtype == np.float32

@@ -9,19 +9,8 @@ import pytest
 from nbvdata.core.config import SimConfig
 from nbvdata.core.views import ViewSet, look_at_rotations, sphere_positions, view_sphere
 from nbvdata.simulation.grid import ray_information
-from nbvdata.simulation.viewfeatures import (
-    _SUMS,
-    FEATURES,
-    METRICS,
-    RayBundle,
-    _entropies,
-    _view_sums,
-    area_factor,
-    camera_history,
-    occupied_distance,
-    view_features,
-    view_sums,
-)
+from nbvdata.simulation.viewfeatures import (_SUMS, FEATURES, METRICS, RayBundle, _entropies, _view_sums, area_factor,
+                                             camera_history, occupied_distance, view_features, view_sums)
 
 CONFIG = SimConfig()
 

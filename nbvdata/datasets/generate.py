@@ -45,7 +45,8 @@ from nbvdata.simulation.episode import LabelledRun, Mover, ViewCache, run_recons
 from nbvdata.simulation.mesh import MeshError, ObjectMesh
 from nbvdata.simulation.policy import DEFAULT_PROVIDER, PolicySource, check_policy, load_policy
 from nbvdata.simulation.scene import Scene
-from nbvdata.simulation.sources import MeshSource, SceneCache, builtin_sources, mesh_sources, part_sources  # noqa: F401 (the job's sources, named here too)
+from nbvdata.simulation.sources import (MeshSource, SceneCache,  # noqa: F401 (the job's sources, named here too)
+                                        builtin_sources, mesh_sources, part_sources)
 
 CONFIG_FILE = "config.yaml"
 POLICY_FILE = "policy.yaml"

@@ -13,22 +13,8 @@ from pathlib import Path
 from nbvdata import __version__
 from nbvdata.core.files import write_atomic
 from nbvdata.datasets.card import write_card
-from nbvdata.schema.manifest import (
-    MANIFEST_FORMAT,
-    NAME,
-    RULES,
-    VERSION,
-    ManifestError,
-    compare,
-    dumps,
-    git_state,
-    load_manifest,
-    make_splits,
-    mesh_licenses,
-    next_version,
-    normalised,
-    read_contents,
-)
+from nbvdata.schema.manifest import (MANIFEST_FORMAT, NAME, RULES, VERSION, ManifestError, compare, dumps, git_state,
+                                     load_manifest, make_splits, mesh_licenses, next_version, normalised, read_contents)
 from nbvdata.schema.shards import SCHEMA_VERSION
 
 

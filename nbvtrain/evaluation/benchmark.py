@@ -41,16 +41,8 @@ from nbvdata.simulation.episode import run_seed, scene_rng
 from nbvdata.simulation.mesh import MeshError
 from nbvdata.simulation.scene import Scene
 from nbvdata.simulation.sources import MeshSource
-from nbvtrain.evaluation.evaluate import (
-    evaluation_rng,
-    front_view,
-    limit_threads,
-    mesh_cache,
-    mesh_runner,
-    reconstruct,
-    recording_of,
-    start_floor,
-)
+from nbvtrain.evaluation.evaluate import (evaluation_rng, front_view, limit_threads, mesh_cache, mesh_runner,
+                                          reconstruct, recording_of, start_floor)
 from nbvtrain.planners import Planner, SnappedPlanner
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: nbvtrain/evaluation/benchmark.py

@@ -32,7 +32,8 @@ import torch
 
 from nbvdata.schema.manifest import Published, open_verified
 from nbvdata.schema.shards import Shard, ShardError, shard_files
-from nbvtrain.networks.training_data import LazyClouds, LazyGrids, load_shards, load_view_states, view_state  # noqa: F401 (view_state: public here too)
+from nbvtrain.networks.training_data import (LazyClouds, LazyGrids,  # noqa: F401 (view_state: public here too)
+                                             load_shards, load_view_states, view_state)
 
 
 class NBVDataset(torch.utils.data.Dataset):

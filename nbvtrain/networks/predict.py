@@ -29,17 +29,8 @@ from nbvdata.core.config import ConfigError
 from nbvdata.core.userarrays import GridError, check_grids
 from nbvdata.core.views import Pose
 from nbvtrain.networks.checkpoint import load_checkpoint, model_from
-from nbvtrain.networks.models import (
-    GRID_SIZE,
-    SCAN_DIRECTIONS,
-    NBVNet,
-    PointScoreNet,
-    ScoreNet,
-    class_positions,
-    quarter_turns,
-    scan_closeness,
-    turn_closeness,
-)
+from nbvtrain.networks.models import (GRID_SIZE, SCAN_DIRECTIONS, NBVNet, PointScoreNet, ScoreNet, class_positions,
+                                      quarter_turns, scan_closeness, turn_closeness)
 from nbvtrain.networks.scores import pick
 
 

@@ -39,14 +39,8 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-from nbvtrain.networks.checkpoint import (
-    WEIGHTS_KEY,
-    CheckpointError,
-    check_weights,
-    load_checkpoint,
-    model_from,
-    weights_digest,
-)
+from nbvtrain.networks.checkpoint import (WEIGHTS_KEY, CheckpointError, check_weights, load_checkpoint, model_from,
+                                          weights_digest)
 from nbvtrain.networks.models import ScoreNet, build_model
 
 Logits = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]

@@ -54,36 +54,15 @@ from nbvdata.core.files import sha256_file
 from nbvdata.core.text import plural
 from nbvdata.schema.manifest import Published, open_verified_for
 from nbvdata.schema.shards import CLOUDS, ShardError
-from nbvtrain.networks.checkpoint import (
-    RESUME_KEYS,
-    CheckpointError,
-    load_checkpoint,
-    model_from,
-    restore,
-    save_checkpoint,
-)
+from nbvtrain.networks.checkpoint import (RESUME_KEYS, CheckpointError, load_checkpoint, model_from, restore,
+                                          save_checkpoint)
 from nbvtrain.networks.config import TrainConfig
 from nbvtrain.networks.metrics import evaluate, format_ratio
-from nbvtrain.networks.models import (
-    NBVNet,
-    ScoreNet,
-    architecture,
-    build_model,
-    class_positions,
-    parameter_count,
-    turn_closeness,
-    view_state_closeness,
-)
+from nbvtrain.networks.models import (NBVNet, ScoreNet, architecture, build_model, class_positions, parameter_count,
+                                      turn_closeness, view_state_closeness)
 from nbvtrain.networks.scores import near_best_loss, pick, score_loss
-from nbvtrain.networks.training_data import (
-    ShardSet,
-    load_shards,
-    load_view_states,
-    published_split,
-    rotate_quarter_turns,
-    split_indices,
-    to_grids,
-)
+from nbvtrain.networks.training_data import (ShardSet, load_shards, load_view_states, published_split,
+                                             rotate_quarter_turns, split_indices, to_grids)
 
 COLUMNS = ("epoch", "train_loss", "val_loss", "val_mse", "val_mae", "val_angle_deg", "val_gain_ratio",
            "val_invalid_share", "seconds", "train_samples_per_s", "machine")

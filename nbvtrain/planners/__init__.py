@@ -68,29 +68,22 @@ Modules: ``base`` (observation, interface, registry), ``builder`` (``build_plann
 Importing the package registers every family, in the docs' order.
 """
 
-from nbvtrain.planners.base import (
-                                    PLANNERS,
-                                    READS,
-                                    Observation,
-                                    Planner,
-                                    PlannerContext,
-                                    PlannerKind,
-                                    Skipped,
-                                    default_planners,
-                                    planner_table,
-                                    register_planner,
-                                    robot_radius,
-)
-from nbvtrain.planners.builder import build_planners
+# isort: off
+# The families in the docs' order: importing each registers its planners, and PLANNERS keeps that
+# order (the docs' table, evaluate's default list).
+from nbvtrain.planners.base import (PLANNERS, READS, Observation, Planner, PlannerContext, PlannerKind, Skipped,
+                                    default_planners, planner_table, register_planner, robot_radius)
+from nbvtrain.planners.networks import LearnedPlanner
+from nbvtrain.planners.infogain import InfoGainPlanner, InfoGainScores
+from nbvtrain.planners.reference import FarthestPlanner, OraclePlanner, RandomPlanner, SetCoverPlanner
+from nbvtrain.planners.ranker import RankerPlanner
+from nbvtrain.planners.metrics import MetricPlanner
 from nbvtrain.planners.covers import CoverModelPlanner, CoverPlanner, SCVPNetPlanner, fixed_layout
 from nbvtrain.planners.hybrid import HybridPlanner
-from nbvtrain.planners.infogain import InfoGainPlanner, InfoGainScores
-from nbvtrain.planners.metrics import MetricPlanner
-from nbvtrain.planners.networks import LearnedPlanner
-from nbvtrain.planners.policies import PolicyPlanner, policy_function
-from nbvtrain.planners.ranker import RankerPlanner
-from nbvtrain.planners.reference import FarthestPlanner, OraclePlanner, RandomPlanner, SetCoverPlanner
 from nbvtrain.planners.wrappers import SnappedPlanner, TravelPlanner
+from nbvtrain.planners.policies import PolicyPlanner, policy_function
+from nbvtrain.planners.builder import build_planners
+# isort: on
 
 __all__ = ["PLANNERS", "READS", "CoverModelPlanner", "CoverPlanner", "FarthestPlanner", "HybridPlanner",
            "InfoGainPlanner", "InfoGainScores", "LearnedPlanner", "MetricPlanner", "Observation", "OraclePlanner",

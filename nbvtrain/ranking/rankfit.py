@@ -32,16 +32,8 @@ from nbvdata.core.config import ConfigError
 from nbvdata.core.text import plural
 from nbvdata.schema.shards import Shard
 from nbvdata.simulation.viewfeatures import FEATURE_GROUPS
-from nbvtrain.ranking.rankdata import (
-    Part,
-    RankingData,
-    cache_path,
-    cached_rows,
-    concatenate,
-    finite,
-    grid_scene,
-    sources_parts,
-)
+from nbvtrain.ranking.rankdata import (Part, RankingData, cache_path, cached_rows, concatenate, finite, grid_scene,
+                                       sources_parts)
 from nbvtrain.ranking.viewrank import RankerConfig, baseline_ratios, fit_gbm, fit_mlp
 
 DEFAULT_CACHE = Path("runs") / "viewrank-features"

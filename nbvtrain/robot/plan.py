@@ -369,8 +369,8 @@ def load_planner(checkpoint: str | Path | None, device: str = "cpu", tta: bool =
 none is released the released score network; ``nbvtrain.planners.released``);
     ``tta``: quarter-turn test-time averaging where it is exact (``Predictor``; refused elsewhere,
     and for a ranker); ``config``: the scene, whose candidate views a ranker ranks."""
-    from nbvtrain.ranking.viewrank import is_ranker_file, load_ranker
     from nbvtrain.planners.released import NoReleasedModel, released_ranker
+    from nbvtrain.ranking.viewrank import is_ranker_file, load_ranker
 
     if checkpoint is not None:
         path = Path(checkpoint)
