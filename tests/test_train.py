@@ -21,6 +21,7 @@ from nbvdata.schema.shards import Shard, ShardError
 from nbvdata.simulation.grid import OccupancyGrid
 from nbvtrain.cli import main
 from nbvtrain.networks.baselines import Skipped, farthest, mean_direction, mean_vector, nearest_neighbour_indices
+from nbvtrain.networks.checkpoint import save_checkpoint
 from nbvtrain.networks.predict import Predictor
 from nbvtrain.networks.train import _StopOnCtrlC, _StopRequested
 from nbvtrain.networks.training_data import load_shards, load_view_states, rotate_quarter_turns, split_indices
@@ -521,7 +522,7 @@ def test_a_network_told_the_scans_starts_as_the_one_it_widens_and_reads_them(sha
     # predict on a .npy grid: the sensor positions from --scanned-at, required for this network
     checkpoint = torch.load(told / "best.pt", weights_only=True)
     checkpoint["state_dict"]["head.1.weight"][:, -42:] = averaged.model.head[1].weight[:, -42:]
-    torch.save(checkpoint, told / "perturbed.pt")
+    save_checkpoint(told / "perturbed.pt", checkpoint)  # weights changed on purpose: their checksum anew
     np.save(tmp_path / "grid.npy", grid)
     predict = ["predict", str(tmp_path / "grid.npy"), "--checkpoint", str(told / "perturbed.pt")]
     capsys.readouterr()
