@@ -20,12 +20,15 @@ from nbvtrain.commands import (COVER_MODELS, INSTALL_TORCH, RANKERS, SURFACE_MOD
                                cmd_evaluate, cmd_fit, cmd_plan, cmd_predict, cmd_release)
 
 
-def _cover_model_flags(parser: argparse.ArgumentParser) -> None:
-    """evaluate's and benchmark's files of the cover planners (``nbvtrain.planners.CoverPlanner``)."""
+def _model_file_flags(parser: argparse.ArgumentParser) -> None:
+    """evaluate's and benchmark's files of the cover planners (``nbvtrain.planners.CoverPlanner``) and of
+    the expected-surface planner (``nbvtrain.planners.SurfacePlanner``)."""
     parser.add_argument("--cover-model", type=Path, help="the cover planner's model: a cover.json of nbvtrain fit "
                         "--model cover-gbm (docs/setcover.md)")
     parser.add_argument("--scvp-checkpoint", type=Path, help="the scvp-net planner's network: a covernet.pt of nbvtrain "
                         "fit --model scvp-net (docs/setcover.md)")
+    parser.add_argument("--surface-prior", type=Path, help="the expected-surface planner's surface prior: a "
+                        "surface.json of nbvtrain fit --model surface-gbm (docs/viewrank.md)")
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -261,7 +264,7 @@ def _add_evaluate(sub, released: dict[str, str]) -> None:
     evaluate.add_argument("--manifest", type=Path, help="a published version (manifests/NAME-X.Y.Z.json): evaluate "
                           "exactly the meshes of --part of its mesh split, found under --meshes by name and sha256")
     evaluate.add_argument("--part", help="with --manifest: val (choosing anything), test or train")
-    _cover_model_flags(evaluate)
+    _model_file_flags(evaluate)
     evaluate.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")
@@ -357,7 +360,7 @@ def _add_benchmark(sub, released: dict[str, str]) -> None:
                        "longest); and cover and scvp-net dropping each planned view whose detour in the tour (view-"
                        "sphere radii) times L exceeds its probability; one planner NAME-travelL per weight "
                        "(docs/benchmark.md, docs/setcover.md)")
-    _cover_model_flags(bench)
+    _model_file_flags(bench)
     bench.add_argument("--ranker", help="the viewrank planner's model: a ranker file of nbvtrain fit --model "
                           "viewrank-gbm|viewrank-mlp (default: the released one); several, comma-separated, are "
                           "compared as viewrank-FOLDER each")

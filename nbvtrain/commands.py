@@ -579,7 +579,7 @@ def _checkpoints(args: argparse.Namespace) -> dict:
     for the released one."""
     return {"scores": _checkpoint_list(args.score_checkpoint, "--score-checkpoint"), "regression": args.checkpoint,
             "classification": args.class_checkpoint, "ranker": _checkpoint_list(args.ranker, "--ranker"),
-            "cover": args.cover_model, "scvp-net": args.scvp_checkpoint}
+            "cover": args.cover_model, "scvp-net": args.scvp_checkpoint, "surface": args.surface_prior}
 
 
 def _checkpoint_list(text: str | None, flag: str) -> list[Path] | None:

@@ -313,6 +313,22 @@ def test_a_surface_prior_and_a_ranker_that_carries_it(surface_shards, tmp_path, 
     assert ranker.prior is not None and "expected_surface" in ranker.features
     scores = ranker.view_scores(grid, positions[taken], views, config)
     assert scores.shape == (len(views),) and np.isfinite(scores).all()
+    # the expected-surface planner: the unscanned view whose rays expect the most new surface
+    from nbvdata.simulation.viewfeatures import METRIC_BUNDLE, view_features
+    from nbvtrain.planners import SurfacePlanner
+
+    (planner,), _ = build_planners(["expected-surface"], config, views, {"surface": prior_run / "surface.json"})
+    assert isinstance(planner, SurfacePlanner)
+    observation = Observation(grid, tuple(views[i] for i in np.flatnonzero(taken)))
+    bundle = bundle_for(views, config, METRIC_BUNDLE)
+    shadow = shadow_weights(grid, observation.positions, bundle)
+    expected = view_features(grid, observation.positions, bundle, prior.probabilities(grid, shadow), shadow)
+    values = planner.values(observation)
+    assert np.array_equal(values, expected[:, FEATURES.index("expected_surface")]) and values.max() > 0
+    values[taken] = -np.inf
+    assert np.array_equal(planner.next_pose(observation).position, views.positions[int(np.argmax(values))])
+    _, skipped = build_planners(["expected-surface"], config, views, {})
+    assert "--surface-prior runs/surface-gbm/surface.json" in str(skipped)
     head = json.loads((ranker_run / "viewrank.json").read_text())
     carried = json.loads(head["surface_prior"])
     carried["lightgbm"] = carried["lightgbm"].replace("Tree=1", "Tree=9", 1)

@@ -38,7 +38,8 @@ poses scanned so far. Only the oracle is privileged: it is also handed the simul
 - ``viewrank``: a ranker of per-view features (``nbvtrain.ranking.viewrank``, ``RankerPlanner``) on any view set.
 - ``occlusion-aware``, ``unobserved-voxel``, ``rear-side-voxel``, ``rear-side-entropy``,
   ``proximity-count``, ``average-entropy``, ``area-factor``, ``proximity-shadow``: the field's hand-crafted metrics over
-  every candidate view (``nbvdata.simulation.viewfeatures.METRICS``, ``MetricPlanner``).
+  every candidate view (``nbvdata.simulation.viewfeatures.METRICS``, ``MetricPlanner``); ``expected-surface``: the
+  surface a learned prior expects each view to newly see (``SurfacePlanner``, ``--surface-prior``).
 - ``setcover``: SCVP's one-shot plan, privileged like the oracle: at its first decision it
   solves the state's set cover (``nbvdata.simulation.setcover``, the fewest views that cover the rest) once,
   then scans the planned views in the order of the shortest tour from where the sensor is
@@ -77,7 +78,7 @@ from nbvtrain.planners.networks import LearnedPlanner
 from nbvtrain.planners.infogain import InfoGainPlanner, InfoGainScores
 from nbvtrain.planners.reference import FarthestPlanner, OraclePlanner, RandomPlanner, SetCoverPlanner
 from nbvtrain.planners.ranker import RankerPlanner
-from nbvtrain.planners.metrics import MetricPlanner
+from nbvtrain.planners.metrics import MetricPlanner, SurfacePlanner
 from nbvtrain.planners.covers import CoverModelPlanner, CoverPlanner, SCVPNetPlanner, fixed_layout
 from nbvtrain.planners.hybrid import HybridPlanner
 from nbvtrain.planners.wrappers import SnappedPlanner, TravelPlanner
@@ -88,6 +89,6 @@ from nbvtrain.planners.builder import build_planners
 __all__ = ["PLANNERS", "READS", "CoverModelPlanner", "CoverPlanner", "FarthestPlanner", "HybridPlanner",
            "InfoGainPlanner", "InfoGainScores", "LearnedPlanner", "MetricPlanner", "Observation", "OraclePlanner",
            "Planner", "PlannerContext", "PlannerKind", "PolicyPlanner", "RandomPlanner", "RankerPlanner",
-           "SCVPNetPlanner", "SetCoverPlanner", "Skipped", "SnappedPlanner", "TravelPlanner", "build_planners",
-           "default_planners", "fixed_layout", "planner_table", "policy_function", "register_planner",
-           "robot_radius"]
+           "SCVPNetPlanner", "SetCoverPlanner", "Skipped", "SnappedPlanner", "SurfacePlanner", "TravelPlanner",
+           "build_planners", "default_planners", "fixed_layout", "planner_table", "policy_function",
+           "register_planner", "robot_radius"]

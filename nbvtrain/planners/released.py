@@ -36,7 +36,8 @@ def released_files(folder: Path | None = None) -> dict[str, str]:
 
 
 PASS_INSTEAD = {"cover": "--cover-model runs/cover-gbm/cover.json",
-                "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt"}
+                "scvp-net": "--scvp-checkpoint runs/scvp-net/covernet.pt",
+                "surface": "--surface-prior runs/surface-gbm/surface.json"}
 """What to pass for a task whose model is no network checkpoint (``released_checkpoint``'s message)."""
 
 
