@@ -1,10 +1,10 @@
 """The dataset card of a published version: ``NAME-X.Y.Z.md`` and ``.png`` beside its manifest.
 
 The card opens with the YAML front matter the Hugging Face Hub reads (``front_matter``: license,
-tags, the splits of the folder ``nbvdata share`` writes). It says what the data is and how it was made, how it splits, the shard schema (read from
-the docstring of ``nbvdata.schema.shards``, its one description), the statistics ``nbvdata inspect``
-prints (samples per mesh, coverage reached, label spread), the meshes' licenses as recorded, and
-five lines of plain h5py that load a sample. The PNG shows how the NBV labels spread over the
+tags, the splits of the folder ``nbvdata share`` writes). It says what the data is and how it was
+made, how it splits, the shard schema (read from the docstring of ``nbvdata.schema.shards``, its
+one description), the statistics ``nbvdata inspect`` prints (samples per mesh, coverage reached,
+label spread), the meshes' licenses as recorded, and five lines of plain h5py that load a sample. The PNG shows how the NBV labels spread over the
 candidate views. Both are written before the manifest, each under a temporary name first.
 """
 
@@ -24,9 +24,9 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 from nbvdata.core.config import OracleConfig, SimConfig, from_dict  # noqa: E402
-from nbvdata.datasets.about import About  # noqa: E402
 from nbvdata.core.files import write_atomic  # noqa: E402
 from nbvdata.core.text import plural  # noqa: E402
+from nbvdata.datasets.about import About  # noqa: E402
 from nbvdata.schema import shards as shard_schema  # noqa: E402
 from nbvdata.schema.shards import COVER, GENERATED, Shard  # noqa: E402
 from nbvdata.schema.summary import Summary, format_summary, summarise  # noqa: E402
