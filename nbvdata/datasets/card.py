@@ -4,8 +4,9 @@ The card opens with the YAML front matter the Hugging Face Hub reads (``front_ma
 tags, the splits of the folder ``nbvdata share`` writes). It says what the data is and how it was
 made, how it splits, the shard schema (read from the docstring of ``nbvdata.schema.shards``, its
 one description), the statistics ``nbvdata inspect`` prints (samples per mesh, coverage reached,
-label spread), the meshes' licenses as recorded, and five lines of plain h5py that load a sample. The PNG shows how the NBV labels spread over the
-candidate views. Both are written before the manifest, each under a temporary name first.
+label spread), the meshes' licenses as recorded, and five lines of plain h5py that load a sample.
+The PNG shows how the NBV labels spread over the candidate views. Both are written before the
+manifest, each under a temporary name first.
 """
 
 from __future__ import annotations
