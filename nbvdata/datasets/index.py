@@ -52,12 +52,13 @@ def index_name(manifest_path: Path) -> str:
 def index_of(published_path: Path, root: Path | None = None) -> bytes:
     """The index of the version ``published_path`` (a manifest), read from its shards under
     ``root`` (default: the root it records), each verified first: by its bytes, or where the
-    manifest records content digests, by those of the arrays read. ManifestError naming the
+    manifest records content digests, by those of the arrays read (the others may differ, or the
+    bytes alone, written by another HDF5 library). ManifestError naming the
     shards that differ."""
     recorded = set()
     for entry in load_manifest(published_path, root).content["shards"]:
         recorded |= set(entry.get("content", {}))
-    published = open_verified_for(published_path, root, unread=frozenset(recorded - READ))[0]
+    published = open_verified_for(published_path, root, unread=frozenset(recorded - READ), by_content=True)[0]
     return index_bytes(published)
 
 
