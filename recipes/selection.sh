@@ -97,6 +97,7 @@ stage_data() {
 stage_publish() {
     log "publish $NAME $VERSION"
     nbvdata publish "$DATA" --name "$NAME" --version "$VERSION" --manifests "$MANIFESTS" --meshes "$MESHES" \
+        --about manifests/about.yaml \
         --test-fraction 0 --notes "Issue 27's data: the 150 shared train meshes and the 999 usable procedural \
 objects of ../shared/meshes/extra/pybullet_random_urdfs (random_000-999 but random_168: NaN vertices), 14 runs \
 each from random start views, exploration epsilon 0.25, default (fitted) scene; its validation meshes choose \

@@ -10,6 +10,15 @@ import pytest
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 MESHES = SHARED / "meshes"
 DATASET = SHARED / "datasets" / "nbv-regression-2019"
+# What nbvdata publish requires beside the shards (nbvdata.datasets.about): as flags, and as the API takes it.
+PUBLISHING = ["--license", "CC-BY-4.0", "--creator", "Lovelace, Ada", "--url", "https://example.org/{name}"]
+
+
+def about():
+    """``PUBLISHING`` as ``nbvdata.datasets.publish.publish`` takes it."""
+    from nbvdata.datasets.about import load_about
+
+    return load_about(license="CC-BY-4.0", creators=["Lovelace, Ada"], url="https://example.org/{name}")
 
 
 def need(path: Path) -> Path:

@@ -8,6 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import PUBLISHING
 
 from nbvdata.cli import main as nbvdata
 from nbvdata.schema.shards import Shard, ShardError
@@ -157,7 +158,7 @@ READERS = {  # a command that reads the array
     "grid_palette": ["inspect", "--by-step", "{copy}"],
     "reference_points": ["export", "{copy}", "--format", "pc-nbv", "--out", "{tmp}/export"],
     "view_positions": ["show", "{copy}", "--index", "0", "--out", "{tmp}/show.png"],
-    "view_poses": ["publish", "{folder}", "--name", "x", "--version", "1.0.0", "--manifests", "{tmp}/manifests"],
+    "view_poses": ["publish", *PUBLISHING, "{folder}", "--name", "x", "--version", "1.0.0", "--manifests", "{tmp}/manifests"],
 }
 
 

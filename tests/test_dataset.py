@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import about
 from torch.utils.data import DataLoader
 
 from nbvdata.cli import main as nbvdata_main
@@ -74,7 +75,7 @@ def test_two_workers_yield_the_samples_of_fits_loader(shards, memory_limit_gb):
 
 
 def test_a_published_version_gives_the_parts_fit_trains_and_validates_on(shards, tmp_path):
-    manifest = publish(shards, "smoke", "1.0.0", tmp_path / "manifests").path
+    manifest = publish(shards, "smoke", "1.0.0", tmp_path / "manifests", about=about()).path
     published = open_verified(manifest)
     for split in ("random", "mesh"):
         train, val, _ = published_split(published, split)
@@ -145,7 +146,7 @@ def test_the_docs_example_trains(shards, tmp_path, monkeypatch):
     example = page.split("## The dataset in your own training code", 1)[1].split("```python\n", 1)[1]
     example = example.split("```", 1)[0]
     assert len(example.strip().splitlines()) <= 11
-    manifest = publish(shards, "builtin-shapes", "1.3.0", tmp_path / "manifests").path
+    manifest = publish(shards, "builtin-shapes", "1.3.0", tmp_path / "manifests", about=about()).path
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     exec(compile(example, "docs/training.md", "exec"), namespace)

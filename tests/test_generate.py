@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 import pytest
 import trimesh
+from conftest import PUBLISHING, about
 
 from nbvdata.cli import main
 from nbvdata.core.config import SimConfig, load_config
@@ -285,7 +286,7 @@ def test_meshes_of_one_file_name_keep_their_path_in_shards_inspect_and_publish(t
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out
     assert all(source in text for source in sources)
-    assert main(["publish", str(out), "--name", "shapenet-like", "--version", "1.0.0", "--manifests",
+    assert main(["publish", *PUBLISHING, str(out), "--name", "shapenet-like", "--version", "1.0.0", "--manifests",
                  str(tmp_path / "manifests"), "--meshes", str(meshes), "--val-fraction", "0.34",
                  "--test-fraction", "0"]) == 0
     warned = capsys.readouterr().err
@@ -565,7 +566,7 @@ def test_the_card_of_an_exploring_version_says_how_it_moved(tmp_path, sources):
 
     shards = tmp_path / "explored"
     generate(sources[:1], shards, _config("generate.workers=1", "episode.explore=0.5"))
-    card = publish(shards, "explored", "1.0.0", tmp_path / "manifests").path.with_suffix(".md").read_text()
+    card = publish(shards, "explored", "1.0.0", tmp_path / "manifests", about=about()).path.with_suffix(".md").read_text()
     assert "- Exploration: at each move, with probability 0.5 the run moved to a uniformly random view" in card
     assert "moves: " in card and "explore " in card
     for dataset in MOVES:  # present (only the point clouds' and the surface's rows are marked absent)

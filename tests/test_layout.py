@@ -31,7 +31,7 @@ STAGES = (
     ("nbvtrain", "robot", "a robot's scans and OctoMaps, plan"),
     ("nbvtrain", "", "release and the command line"),
 )
-ON_TOP = {"nbvdata": {"__init__", "__main__", "cli", "commandline", "env"},
+ON_TOP = {"nbvdata": {"__init__", "__main__", "cli", "commandline", "commands", "env"},
           "nbvtrain": {"__init__", "__main__", "cli", "commands", "release"}}
 """The modules at a package's root (its top stage); any other module lies in a stage folder."""
 LEARNING = STAGES.index(("nbvtrain", "networks", STAGES[6][2]))

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from conftest import PUBLISHING, about
 
 from nbvdata.cli import main as nbvdata
 from nbvdata.core.config import SimConfig, load_config
@@ -46,7 +47,7 @@ def shards(tmp_path_factory) -> Path:
 def published(shards, tmp_path_factory) -> Path:
     """``shards`` published as toy 1.0.0; the path of its manifest. Tests must not change it."""
     manifests = tmp_path_factory.mktemp("site") / "manifests"
-    assert nbvdata(["publish", str(shards), "--name", "toy", "--version", "1.0.0", "--notes", "first release",
+    assert nbvdata(["publish", *PUBLISHING, str(shards), "--name", "toy", "--version", "1.0.0", "--notes", "first release",
                     "--manifests", str(manifests)]) == 0
     return manifests / "toy-1.0.0.json"
 
@@ -97,8 +98,8 @@ def test_splits_are_disjoint_covering_object_disjoint_and_seeded(shards, publish
         assert np.array_equal(random["train"], train) and np.array_equal(random["val"], val)
     finally:
         data.close()
-    again = publish(shards, "toy", "1.0.0", tmp_path / "same")
-    other = publish(shards, "toy", "1.0.0", tmp_path / "other", seed=1)
+    again = publish(shards, "toy", "1.0.0", tmp_path / "same", about=about())
+    other = publish(shards, "toy", "1.0.0", tmp_path / "other", seed=1, about=about())
     assert again.content["splits"] == m.content["splits"] != other.content["splits"]
     assert mesh_split(np.array(["a", "b", "c"]), 0.2, 0.5, 0) == \
         "3 meshes cannot give 1 validation, 2 test and at least 1 training mesh"
@@ -129,7 +130,7 @@ def test_fit_holds_out_the_meshes_a_version_does_for_the_same_seed(shards, tmp_p
     """One mesh split: nbvtrain's on shards is the manifest's with no test part."""
     for seed in (0, 1, 2):
         m = load_manifest(publish(shards, "toy", "1.0.0", tmp_path / str(seed), seed=seed, val_fraction=0.5,
-                                  test_fraction=0).path)
+                                  test_fraction=0, about=about()).path)
         data = load_shards(m.shard_paths)
         try:
             train, val, info = split_indices(data, "mesh", 0.5, seed)
@@ -291,20 +292,20 @@ def test_published_versions_are_immutable(shards, tmp_path, capsys):
     for path in sorted(shards.glob("*.h5"))[:6]:
         shutil.copy(path, part)
     args = ["--name", "toy", "--manifests", str(manifests)]
-    assert nbvdata(["publish", str(part), *args, "--version", "1.0.0", "--notes", "n"]) == 0
+    assert nbvdata(["publish", *PUBLISHING, str(part), *args, "--version", "1.0.0", "--notes", "n"]) == 0
     before = (manifests / "toy-1.0.0.json").read_bytes()
     capsys.readouterr()
-    assert nbvdata(["publish", str(part), *args, "--version", "1.0.0", "--notes", "n"]) == 0
+    assert nbvdata(["publish", *PUBLISHING, str(part), *args, "--version", "1.0.0", "--notes", "n"]) == 0
     assert "already published, identical" in capsys.readouterr().out
     assert (manifests / "toy-1.0.0.json").read_bytes() == before  # not even the creation time changes
 
-    assert nbvdata(["publish", str(part), *args, "--version", "1.0.0", "--notes", "other"]) == 2
+    assert nbvdata(["publish", *PUBLISHING, str(part), *args, "--version", "1.0.0", "--notes", "other"]) == 2
     assert "publish this as 1.0.1 (metadata only" in capsys.readouterr().err
-    assert nbvdata(["publish", str(shards), *args, "--version", "1.0.0", "--notes", "n"]) == 2
+    assert nbvdata(["publish", *PUBLISHING, str(shards), *args, "--version", "1.0.0", "--notes", "n"]) == 2
     err = capsys.readouterr().err
     assert "shards (2 added, 0 removed, 0 changed)" in err and "publish this as 1.1.0 (new meshes or runs" in err
-    assert nbvdata(["publish", str(shards), *args, "--version", "1.1.0", "--notes", "n"]) == 0
-    assert nbvdata(["publish", str(part), *args, "--version", "1.0.0", "--test-fraction", "0.4"]) == 2
+    assert nbvdata(["publish", *PUBLISHING, str(shards), *args, "--version", "1.1.0", "--notes", "n"]) == 0
+    assert nbvdata(["publish", *PUBLISHING, str(part), *args, "--version", "1.0.0", "--test-fraction", "0.4"]) == 2
     assert "publish this as 1.2.0" in capsys.readouterr().err  # bumped from the highest version
     assert (manifests / "toy-1.0.0.json").read_bytes() == before
 
@@ -314,7 +315,7 @@ def test_published_versions_are_immutable(shards, tmp_path, capsys):
     relicensed = [mesh | {"license": "CC-BY-4.0"} for mesh in old["meshes"]]
     assert compare(old, old | {"meshes": relicensed}) == ("patch", "licenses")
     assert next_version(manifests, "toy", "major") == "2.0.0"
-    assert nbvdata(["publish", str(part), *args, "--version", "1.0"]) == 2
+    assert nbvdata(["publish", *PUBLISHING, str(part), *args, "--version", "1.0"]) == 2
     assert "use X.Y.Z" in capsys.readouterr().err
 
 
@@ -326,7 +327,7 @@ def test_licenses_come_from_the_meshes_table_and_few_meshes_have_no_mesh_split(t
     (meshes / "MESHES.tsv").write_text("split\tfile\tlicense_or_origin\ntrain\tbox.stl\tCC0, made by the test\n")
     sources, _ = mesh_sources(meshes)
     assert not generate(sources, tmp_path / "shards", _smoke("episode.runs_per_mesh=1")).failures
-    result = publish(tmp_path / "shards", "files", "1.0.0", tmp_path / "manifests", mesh_dir=meshes)
+    result = publish(tmp_path / "shards", "files", "1.0.0", tmp_path / "manifests", mesh_dir=meshes, about=about())
     licenses = {mesh["source"]: mesh["license"] for mesh in result.content["meshes"]}
     assert licenses == {"box.stl": "CC0, made by the test", "ball.stl": NOT_RECORDED}
     assert result.content["meshes"][1]["sha256"] == hashlib.sha256((meshes / "box.stl").read_bytes()).hexdigest()
@@ -342,7 +343,7 @@ def test_publish_with_meshes_but_no_table_says_the_table_is_missing_and_its_colu
     trimesh.creation.box(extents=(1, 2, 3)).export(meshes / "box.stl")
     sources, _ = mesh_sources(meshes)
     assert not generate(sources, tmp_path / "shards", _smoke("episode.runs_per_mesh=1")).failures
-    args = ["publish", str(tmp_path / "shards"), "--name", "files", "--manifests", str(tmp_path / "manifests"),
+    args = ["publish", *PUBLISHING, str(tmp_path / "shards"), "--name", "files", "--manifests", str(tmp_path / "manifests"),
             "--meshes", str(meshes)]
     assert nbvdata([*args, "--version", "1.0.0"]) == 0
     warning = capsys.readouterr().err.strip()
@@ -365,7 +366,7 @@ def test_imported_shards_publish_with_the_random_split_only(tmp_path, rng, capsy
     np.save(tmp_path / "dataset_pose.npy", poses)
     import_legacy(tmp_path / "dataset_volumes_regression.npy", tmp_path / "dataset_pose.npy", tmp_path / "shards",
                   rows_per_shard=4, show_progress=False)
-    result = publish(tmp_path / "shards", "legacy", "1.0.0", tmp_path / "manifests")
+    result = publish(tmp_path / "shards", "legacy", "1.0.0", tmp_path / "manifests", about=about())
     m = result.content
     assert m["splits"]["mesh"] == {"unavailable": "the shards hold no mesh ids (imported data)"}
     assert m["splits"]["random"]["train"]["samples"] + m["splits"]["random"]["val"]["samples"] == 6
@@ -414,7 +415,7 @@ def clouds(tmp_path_factory) -> Path:
     base = tmp_path_factory.mktemp("clouds")
     report = generate(builtin_sources()[:2], base / "shards", _smoke("episode.runs_per_mesh=1", "state.points=32"))
     assert not report.failures
-    assert nbvdata(["publish", str(base / "shards"), "--name", "clouds", "--version", "1.0.0",
+    assert nbvdata(["publish", *PUBLISHING, str(base / "shards"), "--name", "clouds", "--version", "1.0.0",
                     "--manifests", str(base / "manifests")]) == 0
     return base / "manifests" / "clouds-1.0.0.json"
 

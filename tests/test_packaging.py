@@ -39,6 +39,19 @@ def test_every_nbvdata_module_imports_without_torch():
     assert int(done.stdout) == len(files) - 2  # every module and folder, all but nbvdata's own __init__ and __main__
 
 
+def test_the_publish_extra_checks_and_loads_what_nbvdata_writes_without_it():
+    tomllib = pytest.importorskip("tomllib")
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    tools = {"mlcroissant>=1.1", "datasets>=4.1", "cffconvert>=2.0"}
+    extras = project["optional-dependencies"]
+    assert tools <= set(extras["publish"]) and tools <= set(extras["test"])
+    assert not {re.split(r"[<>=\[]", dep)[0] for dep in project["dependencies"]} & {"mlcroissant", "datasets",
+                                                                                  "cffconvert", "pandas", "pyarrow"}
+    done = _python("sys.modules.update(dict.fromkeys(['mlcroissant', 'datasets', 'cffconvert', 'pandas', 'pyarrow']))\n"
+                   "import nbvdata.cli, nbvdata.datasets.publish, nbvdata.datasets.share\n")
+    assert done.returncode == 0, done.stderr
+
+
 @pytest.mark.parametrize("argv", [["predict", "g.npy", "--checkpoint", "best.pt"], ["--help"], []])
 def test_nbvtrain_without_torch_names_the_install_command(argv):
     done = _python(f"from nbvtrain.cli import main\nsys.exit(main({argv!r}))\n")

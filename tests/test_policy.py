@@ -31,6 +31,7 @@ from nbvtrain.networks.config import TrainConfig  # noqa: E402
 from nbvtrain.networks.models import build_model  # noqa: E402
 from nbvtrain.networks.train import save_training_state  # noqa: E402
 from nbvtrain.planners import LearnedPlanner, Observation  # noqa: E402
+from conftest import about  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "smoke.yaml"
@@ -161,7 +162,7 @@ def test_a_folder_holds_the_runs_of_one_policy(tmp_path, checkpoints, capsys):
 
     from nbvdata.datasets.publish import publish
 
-    card = publish(tmp_path, "rollout", "1.0.0", tmp_path.parent / "manifests").path.with_suffix(".md").read_text()
+    card = publish(tmp_path, "rollout", "1.0.0", tmp_path.parent / "manifests", about=about()).path.with_suffix(".md").read_text()
     assert f"the trained planner nbvnet-3-3 epoch 0 (sha256 `{digest}`) chose" in card
     assert f"nbvdata generate --out {tmp_path.name} --policy CHECKPOINT" in card
     assert f"policy followed: nbvnet-3-3 epoch 0, checkpoint sha256 {digest}" in card

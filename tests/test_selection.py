@@ -20,7 +20,7 @@ import pytest
 import torch
 import trimesh
 import yaml
-from conftest import MESHES, need
+from conftest import MESHES, about, need
 
 from nbvdata.cli import main as nbvdata_main
 from nbvdata.core.config import SimConfig, load_config
@@ -51,7 +51,7 @@ def version(tmp_path_factory) -> tuple[Path, Path]:
     sources, failures = mesh_sources(folder)
     config = load_config(SimConfig, SMOKE, ["episode.runs_per_mesh=1", "episode.max_scans=2", "generate.workers=1"])
     assert not failures and not generate(sources, base / "shards", config).failures
-    result = publish(base / "shards", "sel", "1.0.0", base / "manifests", val_fraction=0.2, test_fraction=0.2)
+    result = publish(base / "shards", "sel", "1.0.0", base / "manifests", val_fraction=0.2, test_fraction=0.2, about=about())
     return result.path, base / "meshes"
 
 
@@ -137,7 +137,7 @@ def test_an_unknown_or_missing_part_is_refused(version, tmp_path, capsys, flags,
 def test_an_empty_part_and_a_part_without_a_manifest_are_refused(version, tmp_path, capsys):
     manifest, meshes = version
     root = manifest.parent.parent
-    empty = publish(root / "shards", "sel", "1.1.0", tmp_path / "manifests", test_fraction=0).path
+    empty = publish(root / "shards", "sel", "1.1.0", tmp_path / "manifests", test_fraction=0, about=about()).path
     assert main(["evaluate", "--manifest", str(empty), "--part", "test", "--meshes", str(meshes),
                  "--out", str(tmp_path / "eval")]) == 2
     assert "holds no meshes (published with --test-fraction 0" in capsys.readouterr().err

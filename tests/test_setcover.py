@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import yaml
+from conftest import about
 
 from nbvdata.cli import main
 from nbvdata.core.config import SimConfig, load_config
@@ -420,7 +421,7 @@ def test_inspect_and_the_card_show_the_labels_by_step(cover_shards, tmp_path, ca
     assert main(["inspect", str(one)]) == 0
     printed = capsys.readouterr().out
     assert "set-cover labels by step" in printed and "\n   1 " in printed and "100.0%" in printed
-    card = publish(one, "covered", "1.0.0", tmp_path / "manifests").path.with_suffix(".md").read_text()
+    card = publish(one, "covered", "1.0.0", tmp_path / "manifests", about=about()).path.with_suffix(".md").read_text()
     assert "- Set-cover labels (`oracle.cover`" in card and "set-cover labels by step" in card
     for dataset in COVER:
         assert f"| `{dataset}` | (N" in card

@@ -1,1 +1,1 @@
-"""The jobs on datasets: the generator, publishing and cards, export, the authors' dataset."""
+"""The jobs on datasets: the generator, publishing and sharing versions, export, the authors' dataset."""

@@ -1,10 +1,12 @@
 """The dataset card of a published version: ``NAME-X.Y.Z.md`` and ``.png`` beside its manifest.
 
-The card says what the data is and how it was made, how it splits, the shard schema (read from
-the docstring of ``nbvdata.schema.shards``, its one description), the statistics ``nbvdata inspect``
-prints (samples per mesh, coverage reached, label spread), the meshes' licenses as recorded, and
-five lines of plain h5py that load a sample. The PNG shows how the NBV labels spread over the
-candidate views. Both are written before the manifest, each under a temporary name first.
+The card opens with the YAML front matter the Hugging Face Hub reads (``front_matter``: license,
+tags, the splits of the folder ``nbvdata share`` writes). It says what the data is and how it was
+made, how it splits, the shard schema (read from the docstring of ``nbvdata.schema.shards``, its
+one description), the statistics ``nbvdata inspect`` prints (samples per mesh, coverage reached,
+label spread), the meshes' licenses as recorded, and five lines of plain h5py that load a sample.
+The PNG shows how the NBV labels spread over the candidate views. Both are written before the
+manifest, each under a temporary name first.
 """
 
 from __future__ import annotations
@@ -20,17 +22,19 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import yaml  # noqa: E402
 
 from nbvdata.core.config import OracleConfig, SimConfig, from_dict  # noqa: E402
 from nbvdata.core.files import write_atomic  # noqa: E402
 from nbvdata.core.text import plural  # noqa: E402
+from nbvdata.datasets.about import About  # noqa: E402
 from nbvdata.schema import shards as shard_schema  # noqa: E402
 from nbvdata.schema.shards import COVER, GENERATED, Shard  # noqa: E402
 from nbvdata.schema.summary import Summary, format_summary, summarise  # noqa: E402
 from nbvdata.simulation.shapes import BUILTIN_SHAPES  # noqa: E402
 
 
-def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> Path:
+def write_card(content: dict, manifest_path: Path, shard_paths: list[Path], about: About) -> Path:
     """Write the card and its label-spread PNG for the manifest ``content`` about to be written
     at ``manifest_path``; returns the card's path."""
     summary = summarise(shard_paths)
@@ -42,8 +46,46 @@ def write_card(content: dict, manifest_path: Path, shard_paths: list[Path]) -> P
                       f"NBV labels of {plural(summary.samples, 'sample', spec=',')} over "
                       f"{plural(len(views), 'candidate view')}")
     card = manifest_path.with_suffix(".md")
-    write_atomic(card, card_text(content, summary, present, manifest_path))
+    write_atomic(card, front_matter(content, about) + card_text(content, summary, present, manifest_path))
     return card
+
+
+HUB_SPLITS = {"train": "train", "val": "validation", "test": "test"}  # the manifest's part -> the Hub's split
+SIZES = ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M"),
+         (10_000_000, "1M<n<10M"))
+
+
+def hub_split(content: dict) -> tuple[str, dict[str, str]]:
+    """The split a shared folder is laid out by - the mesh split where the version has one, else
+    the random one - and {the manifest's part: the Hub's split name}."""
+    kind = "random" if "unavailable" in content["splits"].get("mesh", {"unavailable": ""}) else "mesh"
+    return kind, {part: HUB_SPLITS[part] for part in HUB_SPLITS if part in content["splits"][kind]}
+
+
+def front_matter(content: dict, about: About) -> str:
+    """The YAML front matter the Hugging Face Hub reads from a dataset card: license, name,
+    tags, task and size categories, and ``configs`` whose ``data_files`` are the splits of the
+    folder ``nbvdata share`` writes (``data/<split>/*.h5``, one file per shard and split, every
+    dataset in it per sample: what the ``hdf5`` builder of ``datasets`` requires)."""
+    _, parts = hub_split(content)
+    size = next((label for bound, label in SIZES if content["totals"]["samples"] < bound), "n>10M")
+    matter = {"license": "other" if about.license == "other" else about.license.lower()}
+    if about.license == "other":
+        matter |= {"license_name": "nbv-mesh-licenses", "license_link": "LICENSE"}
+    matter |= {"pretty_name": f"{content['name']} {content['version']}", "tags": list(about.keywords),
+               "task_categories": ["robotics"], "size_categories": [size],
+               "configs": [{"config_name": "default",
+                            "data_files": [{"split": split, "path": f"data/{split}/*.h5"} for split in parts.values()]}]}
+    return "---\n" + yaml.safe_dump(matter, sort_keys=False, width=100) + "---\n\n"
+
+
+def with_front_matter(card: str, matter: str) -> str:
+    """``card`` with ``matter`` in place of the front matter it has, or before its text."""
+    if card.startswith("---\n"):
+        end = card.find("\n---\n", 4)
+        if end >= 0:
+            card = card[end + 5:].lstrip("\n")
+    return matter + card
 
 
 def plot_label_spread(views: np.ndarray, counts: Counter, out: Path, title: str) -> None:

@@ -54,6 +54,7 @@ import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -61,6 +62,7 @@ from nbvdata.core.text import plural
 from nbvdata.schema.shards import Shard, ShardError, cloud_points, shard_files, view_state
 
 PARTIAL_SUFFIX = ".partial"
+T = TypeVar("T")
 
 
 @dataclass
@@ -82,22 +84,35 @@ def export(sources: list[Path], fmt: str, out: Path, root: Path | None = None) -
     if fmt not in FORMATS:
         raise ShardError(f"--format {fmt!r}: unknown format; choose one of {', '.join(FORMATS)}")
     out = Path(out)
+    check_new_folder(out)
+    paths = _shard_paths(sources, root)
+    report = write_folder(out, lambda partial: FORMATS[fmt](paths, partial))
+    report.out = out
+    return report
+
+
+def check_new_folder(out: Path) -> None:
+    """ShardError unless ``out`` is free to write: absent, or an empty folder."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ShardError(f"--out {out}: exists and is not an empty folder; name a new folder")
-    paths = _shard_paths(sources, root)
+
+
+def write_folder(out: Path, fill: Callable[[Path], T]) -> T:
+    """``fill(partial)`` writes a folder's files into ``out.partial``, renamed to ``out`` when it
+    returns: a failed or interrupted writer leaves nothing half written (what a killed one left
+    is cleared first). Returns what ``fill`` does."""
     partial = out.with_name(out.name + PARTIAL_SUFFIX)
-    shutil.rmtree(partial, ignore_errors=True)  # left by an export that was killed
+    shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     try:
-        report = FORMATS[fmt](paths, partial)
+        result = fill(partial)
         if out.exists():
             out.rmdir()
         os.replace(partial, out)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
-    report.out = out
-    return report
+    return result
 
 
 def _shard_paths(sources: list[Path], root: Path | None) -> list[Path]:

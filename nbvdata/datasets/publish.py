@@ -1,10 +1,14 @@
 """``nbvdata publish``: a folder of shards becomes a published version - its manifest
-(``nbvdata.schema.manifest``, which reads and verifies it) and its dataset card (``nbvdata.datasets.card``),
-written together, never over a published version with other content.
+(``nbvdata.schema.manifest``, which reads and verifies it), its dataset card with the Hub's front
+matter (``nbvdata.datasets.card``), its sample index (``.index``), Croissant (``.croissant``) and
+citation files (``.citation``) - written together, never over a published version with other
+content. ``describe`` writes all but the manifest for a version already published (its bytes
+stay as they are, and so does its identity).
 """
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -12,9 +16,14 @@ from pathlib import Path
 
 from nbvdata import __version__
 from nbvdata.core.files import write_atomic
-from nbvdata.datasets.card import write_card
-from nbvdata.schema.manifest import (MANIFEST_FORMAT, NAME, RULES, VERSION, ManifestError, compare, dumps, git_state,
-                                     load_manifest, make_splits, mesh_licenses, next_version, normalised, read_contents)
+from nbvdata.datasets.about import About
+from nbvdata.datasets.card import front_matter, with_front_matter, write_card
+from nbvdata.datasets.citation import citation_cff, zenodo_json
+from nbvdata.datasets.croissant import croissant, croissant_name
+from nbvdata.datasets.index import index_bytes, index_name, index_of
+from nbvdata.schema.manifest import (MANIFEST_FORMAT, NAME, RULES, VERSION, ManifestError, Published, compare, dumps,
+                                     git_state, load_manifest, make_splits, mesh_licenses, next_version, normalised,
+                                     read_contents)
 from nbvdata.schema.shards import SCHEMA_VERSION
 
 
@@ -29,8 +38,9 @@ class PublishResult:
 
 def publish(shards_dir: str | Path, name: str, version: str, manifests_dir: str | Path = "manifests",
             notes: str = "", mesh_dir: str | Path | None = None, seed: int = 0, val_fraction: float = 0.2,
-            test_fraction: float = 0.2) -> PublishResult:
-    """Write ``manifests_dir/NAME-VERSION.json`` for the shards in ``shards_dir``, with its card.
+            test_fraction: float = 0.2, *, about: About) -> PublishResult:
+    """Write ``manifests_dir/NAME-VERSION.json`` for the shards in ``shards_dir``, with its card,
+    sample index, Croissant and citation files (``about``: license, creators, url).
 
     Refuses (ManifestError) an existing NAME-VERSION with other content, naming the next version.
     """
@@ -71,6 +81,38 @@ def publish(shards_dir: str | Path, name: str, version: str, manifests_dir: str 
                             f"versions are immutable: publish this as {next_version(manifests_dir, name, level)} "
                             f"({RULES[level]})")
     manifests_dir.mkdir(parents=True, exist_ok=True)
-    write_card(content, path, contents.paths)
-    write_atomic(path, dumps(content))  # last: a manifest exists only with its card
+    write_card(content, path, contents.paths, about)
+    write_derived(path, content, about, index_bytes(Published(path, content, "", shards_dir)))
+    write_atomic(path, dumps(content))  # last: a manifest exists only with its card and the rest
     return PublishResult(path, content, identical=False)
+
+
+def describe(manifest_path: str | Path, about: About, root: str | Path | None = None) -> list[Path]:
+    """For the published version ``manifest_path``: its card's front matter, and its sample
+    index, Croissant and citation files, from its shards under ``root`` (default: the root it
+    records; verified first, ``index.index_of``). The manifest is not written. Returns the files
+    written."""
+    manifest_path = Path(manifest_path)
+    content = load_manifest(manifest_path).content
+    index = index_of(manifest_path, root)
+    written = write_derived(manifest_path, content, about, index)
+    card = manifest_path.with_suffix(".md")
+    if not card.is_file():
+        raise ManifestError(f"{card}: the card of {content['name']} {content['version']} is missing: restore the "
+                            "published copy")
+    write_atomic(card, with_front_matter(card.read_text(encoding="utf-8"), front_matter(content, about)))
+    return [card, *written]
+
+
+def write_derived(manifest_path: Path, content: dict, about: About, index: bytes) -> list[Path]:
+    """The sample index, Croissant, CITATION.cff and .zenodo.json of the version ``content``,
+    beside its manifest as NAME-X.Y.Z.samples.csv.gz, .croissant.json, .cff and .zenodo.json."""
+    folder, stem = manifest_path.parent, manifest_path.stem
+    document = croissant(content, about, index, index_name(manifest_path), f"{content['root']}/")
+    files = {folder / index_name(manifest_path): index,
+             folder / croissant_name(manifest_path): json.dumps(document, indent=1, ensure_ascii=False, allow_nan=False) + "\n",
+             folder / f"{stem}.cff": citation_cff(content, about),
+             folder / f"{stem}.zenodo.json": zenodo_json(content, about)}
+    for path, data in files.items():
+        write_atomic(path, data)
+    return list(files)

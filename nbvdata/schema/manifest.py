@@ -444,13 +444,14 @@ def open_verified(path: str | Path, root: str | Path | None = None) -> Published
     return open_verified_for(path, root)[0]
 
 
-def open_verified_for(path: str | Path, root: str | Path | None = None,
-                      unread: frozenset[str] = frozenset()) -> tuple[Published, list[Problem]]:
+def open_verified_for(path: str | Path, root: str | Path | None = None, unread: frozenset[str] = frozenset(),
+                      by_content: bool = False) -> tuple[Published, list[Problem]]:
     """``open_verified`` for a reader that never reads the arrays ``unread`` (a grid network, the
     point clouds): a shard whose content differs in those arrays only is accepted, and returned
     with the manifest - (the manifest, the shards accepted so; every other array and the attributes
-    equal, so the same samples). ManifestError listing any other problem."""
-    verification = verify(path, root)
+    equal, so the same samples); ``by_content``: a shard of other bytes whose every array and
+    attribute is equal passes too (``verify``'s). ManifestError listing any other problem."""
+    verification = verify(path, root, by_content=by_content)
     accepted = [problem for problem in verification.problems
                 if problem.kind == "changed" and problem.arrays and set(problem.arrays) <= unread]
     problems = [str(problem) for problem in verification.problems
