@@ -158,7 +158,8 @@ READERS = {  # a command that reads the array
     "grid_palette": ["inspect", "--by-step", "{copy}"],
     "reference_points": ["export", "{copy}", "--format", "pc-nbv", "--out", "{tmp}/export"],
     "view_positions": ["show", "{copy}", "--index", "0", "--out", "{tmp}/show.png"],
-    "view_poses": ["publish", *PUBLISHING, "{folder}", "--name", "x", "--version", "1.0.0", "--manifests", "{tmp}/manifests"],
+    "view_poses": ["publish", *(arg.replace("{", "{{").replace("}", "}}") for arg in PUBLISHING),  # literal {name}
+                   "{folder}", "--name", "x", "--version", "1.0.0", "--manifests", "{tmp}/manifests"],
 }
 
 

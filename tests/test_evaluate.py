@@ -66,12 +66,13 @@ def checkpoints(tmp_path_factory, config) -> dict[str, Path]:
 
 
 def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
-    """An untrained scvp-net of the scene's views and a cover-gbm of a few trees on random rows: the
-    cover planners' interface only."""
+    """An untrained scvp-net of the scene's views, and a cover-gbm and a surface-gbm of a few trees
+    on random rows: the cover and expected-surface planners' interface only."""
     from nbvdata.simulation.viewfeatures import BASE
     from nbvtrain.ranking._lightgbm import lightgbm
     from nbvtrain.ranking.covermodel import CoverModel
     from nbvtrain.ranking.covernet import CoverNetConfig, network, save_covernet
+    from nbvtrain.ranking.surfaceprior import VOXEL_FEATURES, SurfacePrior
 
     torch.manual_seed(0)
     views = view_sphere(config.views).positions
@@ -83,13 +84,19 @@ def _cover_models(folder: Path, config: SimConfig) -> dict[str, Path]:
     grid = config.scene_grid
     CoverModel(booster, (4, 3), {"grid_size": grid.size, "grid_extent": float(grid.extent)}, 0.5, {}).save(
         folder / "cover.json")
-    return {"cover": folder / "cover.json", "scvp-net": folder / "covernet.pt"}
+    rows = rng.random((200, len(VOXEL_FEATURES))).astype(np.float32)
+    booster = lightgbm.train({"objective": "binary", "verbosity": -1, "num_threads": 1, "min_data_in_leaf": 5},
+                             lightgbm.Dataset(rows, label=(rows[:, 0] > 0.5).astype(int)), num_boost_round=3)
+    SurfacePrior(booster, {"grid_size": grid.size, "grid_extent": float(grid.extent)}, 0.1, {}).save(
+        folder / "surface.json")
+    return {"cover": folder / "cover.json", "scvp-net": folder / "covernet.pt", "surface": folder / "surface.json"}
 
 
 def _learned(checkpoints: dict[str, Path]) -> dict[str, Path]:
     """build_planners' checkpoints: task -> file."""
     return {"regression": checkpoints["nbvnet-3-3"], "classification": checkpoints["nbvnet-class"],
-            "scores": checkpoints["nbvscore-3"], "cover": checkpoints["cover"], "scvp-net": checkpoints["scvp-net"]}
+            "scores": checkpoints["nbvscore-3"], "cover": checkpoints["cover"], "scvp-net": checkpoints["scvp-net"],
+            "surface": checkpoints["surface"]}
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """``nbvdata share MANIFEST --out DIR``: a published version as a folder to upload whole - to a
-Hugging Face Hub dataset repository (``huggingface_hub``'s ``upload_folder``) or a Zenodo deposit::
+Hugging Face Hub dataset repository (``huggingface_hub``'s ``upload_folder``) or a Zenodo deposit. It holds
 
     DIR/README.md                   the card, whose front matter the Hub reads (configs -> data/)
     DIR/NAME-X.Y.Z.png              the card's label-spread figure
