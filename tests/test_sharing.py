@@ -190,9 +190,8 @@ def test_describing_a_published_version_again_gives_the_same_bytes(version, tmp_
 ROOT = Path(__file__).resolve().parents[1]
 COMMITTED = sorted(path for path in (ROOT / "manifests").glob("*.json")
                    if re.fullmatch(r".+-\d+\.\d+\.\d+\.json", path.name))
-WITHOUT = {"builtin-shapes-1.0.0": "a record only: no regeneration can prove its rows",
-           **{f"train-meshes-1.{minor}.0": "its index waits for train-meshes 1.6.0's shards made again"
-              for minor in range(7)}}  # docs/publishing.md, "Croissant, the Hub and citations"
+WITHOUT = {"builtin-shapes-1.0.0": "a record only: no regeneration can prove its rows"}
+# docs/publishing.md, "Croissant, the Hub and citations"
 
 
 @pytest.mark.parametrize("manifest", COMMITTED, ids=[path.stem for path in COMMITTED])
@@ -222,12 +221,13 @@ def test_every_committed_version_has_its_croissant_index_hub_card_and_citation(m
     assert first["samples/key"] == 0 and first["samples/shard"].decode() == holder
 
 
-def _rewritten(path: Path, array: str | None = None) -> None:
-    """``path`` written again at another gzip level (other bytes), ``array``'s first value changed."""
+def _rewritten(path: Path, array: str | None = None, added: dict | None = None) -> None:
+    """``path`` written again at another gzip level (other bytes), ``array``'s first value changed,
+    the arrays ``added`` (name -> values) added."""
     import h5py
 
     with h5py.File(path, "r") as f:
-        arrays, attrs = {name: f[name][()] for name in f}, dict(f.attrs)
+        arrays, attrs = {name: f[name][()] for name in f} | (added or {}), dict(f.attrs)
     if array is not None:  # a change within the array's value rules
         values = arrays[array]
         first = values.flat[0]
@@ -241,9 +241,9 @@ def _rewritten(path: Path, array: str | None = None) -> None:
 
 
 def test_the_index_of_a_version_reads_shards_whose_other_arrays_or_bytes_differ(version, tmp_path):
-    """Another version of the same states (the covers of a layout's states, a regeneration by
-    another HDF5 library) gives the index: what it reads is proved equal by the manifest's
-    digests; a shard whose labels differ is refused, naming it."""
+    """Another version of the same states (the covers of a layout's states, a later version with
+    point clouds, a regeneration by another HDF5 library) gives the index: what it reads is proved
+    equal by the manifest's digests; a shard whose labels differ is refused, naming it."""
     published = load_manifest(version)
     copy = tmp_path / "manifests"
     shutil.copytree(version.parent, copy)
@@ -251,14 +251,16 @@ def test_the_index_of_a_version_reads_shards_whose_other_arrays_or_bytes_differ(
     expected = index.read_bytes()
     root = tmp_path / "other"
     shutil.copytree(published.root, root)
-    first, second = sorted(root.glob("*.h5"))[:2]
+    first, second, third = sorted(root.glob("*.h5"))[:3]
     _rewritten(first)  # other bytes, every array equal
     _rewritten(second, "gains")  # an array the index does not read
+    _rewritten(third, added={"surface": np.ones((4, 4, 4), bool)})  # an array the manifest does not record
     describe(copy / version.name, about(), root)
     assert index.read_bytes() == expected
     from nbvdata.schema.manifest import verify
 
-    assert {problem.arrays for problem in verify(copy / version.name, root).problems} == {(), ("gains",)}
+    assert {problem.arrays for problem in verify(copy / version.name, root).problems} == {
+        (), ("gains",), ("surface",)}
     _rewritten(second, "nbv_index")
     with pytest.raises(ManifestError, match=f"changed: {second.name}: .*content differs in .*nbv_index"):
         describe(copy / version.name, about(), root)

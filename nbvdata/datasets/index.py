@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from nbvdata.schema.manifest import PARTS, Published, from_ranges, load_manifest, open_verified_for
-from nbvdata.schema.shards import Shard
+from nbvdata.schema.shards import PER_SAMPLE, PER_SHARD, Shard
 
 COLUMNS = ("key", "shard", "row", "mesh_id", "mesh_source", "run", "scan", "mesh_split", "random_split",
            "nbv_index", "coverage", "coverage_after")
@@ -52,13 +52,13 @@ def index_name(manifest_path: Path) -> str:
 def index_of(published_path: Path, root: Path | None = None) -> bytes:
     """The index of the version ``published_path`` (a manifest), read from its shards under
     ``root`` (default: the root it records), each verified first: by its bytes, or where the
-    manifest records content digests, by those of the arrays read (the others may differ, or the
-    bytes alone, written by another HDF5 library). ManifestError naming the
-    shards that differ."""
-    recorded = set()
+    manifest records content digests, by those of the arrays read (the others may differ, be
+    missing or be added - a later version's point clouds - or the bytes alone, written by another
+    HDF5 library). ManifestError naming the shards that differ."""
+    known = {"attributes", *PER_SAMPLE, *PER_SHARD}
     for entry in load_manifest(published_path, root).content["shards"]:
-        recorded |= set(entry.get("content", {}))
-    published = open_verified_for(published_path, root, unread=frozenset(recorded - READ), by_content=True)[0]
+        known |= set(entry.get("content", {}))
+    published = open_verified_for(published_path, root, unread=frozenset(known - READ), by_content=True)[0]
     return index_bytes(published)
 
 
