@@ -303,15 +303,11 @@ def cmd_verify(args: argparse.Namespace) -> int:
         started = time.perf_counter()
         paths = shard_files([args.manifest])
         problems = check_shards(paths)
-        for problem in problems:
-            print(problem)
-        seconds = time.perf_counter() - started
-        if problems:
-            print(f"{plural(len(problems), 'damaged shard')} of {len(paths)} ({seconds:.1f} s): delete them and run "
-                  "nbvdata generate again (it redoes them), or restore them from a good copy")
-            return 1
-        print(f"ok: {plural(len(paths), 'shard')} read whole, every checksum and value range holds ({seconds:.1f} s)")
-        return 0
+        return _report(problems, time.perf_counter() - started,
+                       failed=f"{plural(len(problems), 'damaged shard')} of {len(paths)}",
+                       fix="delete them and run nbvdata generate again (it redoes them), or restore them from a good "
+                           "copy",
+                       ok=f"ok: {plural(len(paths), 'shard')} read whole, every checksum and value range holds")
     result = verify(args.manifest, args.root, by_content=args.content)
     published, totals = result.published, result.published.content["totals"]
     croissant = args.manifest.with_name(croissant_name(args.manifest))
@@ -321,19 +317,14 @@ def cmd_verify(args: argparse.Namespace) -> int:
     print(f"{args.manifest}: {published.label}, {plural(totals['shards'], 'shard')}, "
           f"{plural(totals['samples'], 'sample')}, "
           f"in {os.path.normpath(published.root)}")
-    for problem in result.problems:
-        print(problem)
-    if result.problems:
-        kinds = {problem.kind for problem in result.problems}
-        fixes = (["restore the files named from a good copy"] if kinds - {"extra"} else []) + (
-            ["move the extra ones away (or publish them as a new version)"] if "extra" in kinds else [])
-        print(f"{plural(len(result.problems), 'problem')} ({result.seconds:.1f} s): this is not the published "
-              f"{published.label}; {' and '.join(fixes)}")
-        return 1
+    kinds = {problem.kind for problem in result.problems}
+    fixes = (["restore the files named from a good copy"] if kinds - {"extra"} else []) + (
+        ["move the extra ones away (or publish them as a new version)"] if "extra" in kinds else [])
     same = "with the same content" if args.content else "unchanged"
     agrees = f"; {croissant.name} and its sample index agree" if described else ""
-    print(f"ok: every shard is there, {same}, with the samples listed; no others{agrees} ({result.seconds:.1f} s)")
-    return 0
+    return _report(result.problems, result.seconds, failed=plural(len(result.problems), "problem"),
+                   fix=f"this is not the published {published.label}; {' and '.join(fixes)}",
+                   ok=f"ok: every shard is there, {same}, with the samples listed; no others{agrees}")
 
 
 def _verify_croissant(args: argparse.Namespace) -> int:
@@ -345,14 +336,20 @@ def _verify_croissant(args: argparse.Namespace) -> int:
                           "say, relative to it")
     started = time.perf_counter()
     problems = check_files(args.manifest)
+    return _report(problems, time.perf_counter() - started, failed=plural(len(problems), "problem"),
+                   fix=f"these are not the files {args.manifest.name} describes; restore them from a good copy",
+                   ok=f"ok: every file {args.manifest.name} lists is there with its sha256")
+
+
+def _report(problems: list, seconds: float, *, failed: str, fix: str, ok: str) -> int:
+    """What ``nbvdata verify`` prints of a check: each problem, then ``failed`` with the seconds and
+    ``fix`` (exit status 1), or ``ok`` with the seconds (0)."""
     for problem in problems:
         print(problem)
-    seconds = time.perf_counter() - started
     if problems:
-        print(f"{plural(len(problems), 'problem')} ({seconds:.1f} s): these are not the files {args.manifest.name} "
-              "describes; restore them from a good copy")
+        print(f"{failed} ({seconds:.1f} s): {fix}")
         return 1
-    print(f"ok: every file {args.manifest.name} lists is there with its sha256 ({seconds:.1f} s)")
+    print(f"{ok} ({seconds:.1f} s)")
     return 0
 
 

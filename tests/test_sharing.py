@@ -130,6 +130,12 @@ def test_a_changed_shard_byte_fails_the_croissants_sha256(version, tmp_path, cap
     croissant.write_text(json.dumps(document))
     assert nbvdata(["verify", str(manifest), "--root", str(share / "shards")]) == 1
     assert "sha256 or size differs from the manifest's" in capsys.readouterr().out
+    # a contentUrl that leaves the Croissant's folder is named, and the file there is not read
+    (tmp_path / "outside.h5").write_bytes(b"not a shard")
+    document["distribution"][1]["contentUrl"] = "../outside.h5"
+    croissant.write_text(json.dumps(document))
+    assert nbvdata(["verify", str(croissant)]) == 1
+    assert "outside: ../outside.h5: a contentUrl leaves the Croissant's folder" in capsys.readouterr().out
 
 
 def test_the_shared_folder_loads_with_datasets_as_the_splits_of_the_manifest(version, tmp_path):

@@ -7,6 +7,7 @@ manifest; ``nbvdata share`` writes them under those names into the folder to upl
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import yaml
 
@@ -20,6 +21,12 @@ PAPER = {"type": "article", "title": "Next-best-view Regression using a 3D Convo
              ("Rafael", "Murrieta-Cid"))],
          "journal": "Machine Vision and Applications", "year": 2021}
 ZENODO_OTHER = "other-at"  # Zenodo's "Other (Attribution)", for a license that is no single SPDX one
+
+
+def citation_names(manifest_path: Path) -> tuple[str, str]:
+    """``NAME-X.Y.Z.cff`` and ``NAME-X.Y.Z.zenodo.json`` of the manifest ``NAME-X.Y.Z.json``."""
+    stem = Path(manifest_path).stem
+    return f"{stem}.cff", f"{stem}.zenodo.json"
 
 
 def citation_cff(content: dict, about: About) -> str:

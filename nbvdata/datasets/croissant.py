@@ -28,7 +28,7 @@ from pathlib import Path
 
 from nbvdata.datasets.about import About
 from nbvdata.datasets.index import COLUMNS, FLOAT, INTEGER
-from nbvdata.schema.manifest import ManifestError
+from nbvdata.schema.manifest import ManifestError, stays_inside
 from nbvdata.schema.shards import GENERATED
 
 CONFORMS_TO = ["http://mlcommons.org/croissant/1.1", "http://mlcommons.org/croissant/RAI/1.0"]
@@ -221,6 +221,11 @@ def _mesh_kinds(content: dict) -> str:
             "modelled meshes" if sources else "none recorded")
 
 
+def croissant_text(document: dict) -> str:
+    """The file text of the Croissant ``document`` (JSON, one space a level, UTF-8 as written)."""
+    return json.dumps(document, indent=1, ensure_ascii=False, allow_nan=False) + "\n"
+
+
 def read_croissant(path: Path) -> dict:
     """The Croissant at ``path`` as JSON; ManifestError when it is not one."""
     try:
@@ -257,7 +262,7 @@ def check_croissant(path: Path, content: dict) -> list[str]:
 def check_files(path: Path, items: list[dict] | None = None) -> list[str]:
     """The local files of the Croissant at ``path`` (its FileObjects, or ``items`` of them)
     that are missing or whose sha256 differs from the one it records; [] when all match. A
-    contentUrl is relative to the Croissant's folder; remote ones (http) are not fetched."""
+    contentUrl is relative to the Croissant's folder, inside it; remote ones (http) are not fetched."""
     from nbvdata.core.files import sha256_file
 
     if items is None:
@@ -268,7 +273,9 @@ def check_files(path: Path, items: list[dict] | None = None) -> list[str]:
         if url.startswith(("http://", "https://")):
             continue
         local = Path(path).parent / url
-        if not local.is_file():
+        if not stays_inside(url):
+            problems.append(f"outside: {url[:80]}: a contentUrl leaves the Croissant's folder; restore the published copy")
+        elif not local.is_file():
             problems.append(f"missing: {url}")
         elif sha256_file(local) != item.get("sha256"):
             problems.append(f"changed: {url}: sha256 differs from the Croissant's")

@@ -8,7 +8,6 @@ stay as they are, and so does its identity).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -18,8 +17,8 @@ from nbvdata import __version__
 from nbvdata.core.files import write_atomic
 from nbvdata.datasets.about import About
 from nbvdata.datasets.card import front_matter, with_front_matter, write_card
-from nbvdata.datasets.citation import citation_cff, zenodo_json
-from nbvdata.datasets.croissant import croissant, croissant_name
+from nbvdata.datasets.citation import citation_cff, citation_names, zenodo_json
+from nbvdata.datasets.croissant import croissant, croissant_name, croissant_text
 from nbvdata.datasets.index import index_bytes, index_name, index_of
 from nbvdata.schema.manifest import (MANIFEST_FORMAT, NAME, RULES, VERSION, ManifestError, Published, compare, dumps,
                                      git_state, load_manifest, make_splits, mesh_licenses, next_version, normalised,
@@ -94,12 +93,11 @@ def describe(manifest_path: str | Path, about: About, root: str | Path | None = 
     written."""
     manifest_path = Path(manifest_path)
     content = load_manifest(manifest_path).content
-    index = index_of(manifest_path, root)
-    written = write_derived(manifest_path, content, about, index)
     card = manifest_path.with_suffix(".md")
     if not card.is_file():
         raise ManifestError(f"{card}: the card of {content['name']} {content['version']} is missing: restore the "
                             "published copy")
+    written = write_derived(manifest_path, content, about, index_of(manifest_path, root))
     write_atomic(card, with_front_matter(card.read_text(encoding="utf-8"), front_matter(content, about)))
     return [card, *written]
 
@@ -107,12 +105,12 @@ def describe(manifest_path: str | Path, about: About, root: str | Path | None = 
 def write_derived(manifest_path: Path, content: dict, about: About, index: bytes) -> list[Path]:
     """The sample index, Croissant, CITATION.cff and .zenodo.json of the version ``content``,
     beside its manifest as NAME-X.Y.Z.samples.csv.gz, .croissant.json, .cff and .zenodo.json."""
-    folder, stem = manifest_path.parent, manifest_path.stem
+    folder, (cff, zenodo) = manifest_path.parent, citation_names(manifest_path)
     document = croissant(content, about, index, index_name(manifest_path), f"{content['root']}/")
     files = {folder / index_name(manifest_path): index,
-             folder / croissant_name(manifest_path): json.dumps(document, indent=1, ensure_ascii=False, allow_nan=False) + "\n",
-             folder / f"{stem}.cff": citation_cff(content, about),
-             folder / f"{stem}.zenodo.json": zenodo_json(content, about)}
+             folder / croissant_name(manifest_path): croissant_text(document),
+             folder / cff: citation_cff(content, about),
+             folder / zenodo: zenodo_json(content, about)}
     for path, data in files.items():
         write_atomic(path, data)
     return list(files)

@@ -23,7 +23,6 @@ which the builder leaves alone. ``datasets.load_dataset(DIR)`` then yields the s
 
 from __future__ import annotations
 
-import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +32,8 @@ import numpy as np
 
 from nbvdata.core.text import plural
 from nbvdata.datasets.card import hub_split
-from nbvdata.datasets.croissant import croissant_name, read_croissant
+from nbvdata.datasets.citation import citation_names
+from nbvdata.datasets.croissant import croissant_name, croissant_text, read_croissant
 from nbvdata.datasets.export import check_new_folder, write_folder
 from nbvdata.datasets.index import index_name
 from nbvdata.schema.manifest import ManifestError, Published, from_ranges, open_verified
@@ -58,12 +58,11 @@ def share(manifest_path: str | Path, out: str | Path, root: str | Path | None = 
     version has no card front matter, Croissant or citation files yet."""
     manifest_path, out = Path(manifest_path), Path(out)
     check_new_folder(out)
-    stem = manifest_path.stem
+    cff, zenodo = citation_names(manifest_path)
     beside = {"card": manifest_path.with_suffix(".md"), "figure": manifest_path.with_suffix(".png"),
               "croissant": manifest_path.with_name(croissant_name(manifest_path)),
               "index": manifest_path.with_name(index_name(manifest_path)),
-              "citation": manifest_path.with_name(f"{stem}.cff"),
-              "zenodo": manifest_path.with_name(f"{stem}.zenodo.json")}
+              "citation": manifest_path.with_name(cff), "zenodo": manifest_path.with_name(zenodo)}
     missing = [path.name for path in beside.values() if not path.is_file()]
     if missing or not beside["card"].read_text(encoding="utf-8").startswith("---\n"):
         raise ManifestError(f"{manifest_path}: {', '.join(missing) or 'the card front matter'} missing: write them "
@@ -85,8 +84,7 @@ def _fill(out: Path, published: Published, beside: dict[str, Path]) -> ShareRepo
     for item in document["distribution"]:
         if item["contentUrl"].startswith(prefix):
             item["contentUrl"] = "shards/" + item["contentUrl"].removeprefix(prefix)
-    (out / beside["croissant"].name).write_text(json.dumps(document, indent=1, ensure_ascii=False, allow_nan=False) + "\n",
-                                                encoding="utf-8")
+    (out / beside["croissant"].name).write_text(croissant_text(document), encoding="utf-8")
     if not str(document.get("license", "")).startswith("https://spdx.org/"):
         (out / "LICENSE").write_text(str(document["license"]) + "\n", encoding="utf-8")
     kind, parts = hub_split(content)

@@ -318,16 +318,16 @@ def load_manifest(path: str | Path, root: str | Path | None = None) -> Published
         raise ManifestError(f"{path}: incomplete manifest ({', '.join(missing) or 'root or shards'} missing or "
                             "malformed): restore the published copy")
     for entry in entries:
-        if not _stays_inside(entry["path"]):
+        if not stays_inside(entry["path"]):
             raise ManifestError(f"{path}: shard path {str(entry['path'])[:80]!r} leaves the shards' folder; a "
                                 "manifest lists its shards relative to its root, inside it: restore the published copy")
     base = Path(root) if root is not None else path.parent / content["root"]
     return Published(path, content, hashlib.sha256(raw).hexdigest(), base)
 
 
-def _stays_inside(name: object) -> bool:
-    """Whether a manifest's shard path names a file below its root: relative, no '..', on POSIX
-    and Windows alike."""
+def stays_inside(name: object) -> bool:
+    """Whether a path recorded in a published file (a manifest's shard, a Croissant's contentUrl)
+    names a file below its folder: relative, no '..', on POSIX and Windows alike."""
     if not isinstance(name, str) or not name.strip() or "\0" in name:
         return False
     posix, windows = PurePosixPath(name), PureWindowsPath(name)
